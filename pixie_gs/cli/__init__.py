@@ -1,0 +1,1 @@
+"""The `pixie` command: one module per subcommand (`cmd_<name>.py`)."""

@@ -1,0 +1,69 @@
+"""Entry point of the `pixie` command.
+
+Each subcommand lives in `pixie_gs/cli/cmd_<name>.py` and exposes
+`add_parser(subparsers, parents) -> argparse.ArgumentParser` (which sets `func=run`).
+Command modules import heavy libraries (torch, warp) inside `run`, so `--help` stays fast.
+Exit codes: 0 ok, 1 bad input, 2 usage, 3 computation failed, 130 interrupted.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from ..errors import PixieError
+from ..progress import set_quiet
+
+COMMANDS = ["demo", "info", "convert", "generate", "train", "evaluate", "annotate", "simulate", "diagnose"]
+
+
+def common_options() -> argparse.ArgumentParser:
+    """Options every subcommand takes."""
+    parent = argparse.ArgumentParser(add_help=False)
+    parent.add_argument("--quiet", "-q", action="store_true", help="no progress bars or stage lines")
+    return parent
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="pixie",
+        description="Physics for 3D Gaussian splats: predict materials, simulate, diagnose.",
+        epilog="Run `pixie COMMAND --help` for each command. Exit codes: 0 ok, 1 bad input, "
+        "2 usage, 3 computation failed.",
+    )
+    from .. import __version__
+
+    parser.add_argument("--version", action="version", version=f"pixie-gs {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    parents = [common_options()]
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"pixie_gs.cli.cmd_{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"pixie_gs.cli.cmd_{name}":
+                continue  # command not built yet
+            raise
+        module.add_parser(sub, parents)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    set_quiet(getattr(args, "quiet", False))
+    try:
+        result = args.func(args)
+    except PixieError as exc:
+        print(f"pixie {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print(f"pixie {args.command}: interrupted", file=sys.stderr)
+        return 130
+    return int(result or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,440 @@
+"""SplatCloud: the one container of 3D Gaussians that every pixie-gs stage reads and extends.
+
+Reads INRIA-format 3DGS `.ply` files (binary little/big endian or ascii) with plyfile and writes
+binary little endian. Every vertex property is kept in its original order and bytes; properties
+pixie-gs does not interpret (normals, features, ids…) travel verbatim in `extras`, and stages add
+their results (e.g. `material_id`, `E`, `nu`, `density`) as further named per-Gaussian attributes.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from plyfile import PlyData, PlyElement
+
+from .atomic import atomic_path
+from .errors import InputError
+
+SH_C0 = 0.28209479177387814  # degree-0 real spherical harmonic: rgb = 0.5 + SH_C0 · f_dc
+MATERIAL_ATTRIBUTES = ("material_id", "E", "nu", "density")
+LABEL_ATTRIBUTES = MATERIAL_ATTRIBUTES + ("part_id",)
+_VALID_REST_COUNTS = {0: 0, 9: 1, 24: 2, 45: 3}  # number of f_rest properties -> SH degree
+_CORE_GROUPS = {
+    "means": ("x", "y", "z"),
+    "log_scales": ("scale_0", "scale_1", "scale_2"),
+    "rotations": ("rot_0", "rot_1", "rot_2", "rot_3"),
+    "opacity_logits": ("opacity",),
+    "sh_dc": ("f_dc_0", "f_dc_1", "f_dc_2"),
+}
+
+
+def quat_to_rotmat(quats_wxyz: np.ndarray) -> np.ndarray:
+    """Rotation matrices (N,3,3) from quaternions (N,4) in w,x,y,z order (normalised here)."""
+    q = np.asarray(quats_wxyz, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    R = np.empty((len(q), 3, 3))
+    R[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    R[:, 0, 1] = 2 * (x * y - w * z)
+    R[:, 0, 2] = 2 * (x * z + w * y)
+    R[:, 1, 0] = 2 * (x * y + w * z)
+    R[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    R[:, 1, 2] = 2 * (y * z - w * x)
+    R[:, 2, 0] = 2 * (x * z - w * y)
+    R[:, 2, 1] = 2 * (y * z + w * x)
+    R[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
+def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
+    """Unit quaternions (N,4) w,x,y,z from proper rotation matrices (N,3,3) (Shepperd's method)."""
+    R = np.asarray(R, dtype=np.float64)
+    n = len(R)
+    q = np.empty((n, 4))
+    tr = R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2]
+    diag = np.stack([tr, R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], axis=1)
+    k = np.argmax(diag, axis=1)
+    for case in range(4):
+        m = k == case
+        if not m.any():
+            continue
+        r = R[m]
+        if case == 0:
+            s = np.sqrt(1.0 + tr[m]) * 2
+            q[m] = np.stack([0.25 * s, (r[:, 2, 1] - r[:, 1, 2]) / s, (r[:, 0, 2] - r[:, 2, 0]) / s,
+                             (r[:, 1, 0] - r[:, 0, 1]) / s], axis=1)
+        elif case == 1:
+            s = np.sqrt(1.0 + r[:, 0, 0] - r[:, 1, 1] - r[:, 2, 2]) * 2
+            q[m] = np.stack([(r[:, 2, 1] - r[:, 1, 2]) / s, 0.25 * s, (r[:, 0, 1] + r[:, 1, 0]) / s,
+                             (r[:, 0, 2] + r[:, 2, 0]) / s], axis=1)
+        elif case == 2:
+            s = np.sqrt(1.0 + r[:, 1, 1] - r[:, 0, 0] - r[:, 2, 2]) * 2
+            q[m] = np.stack([(r[:, 0, 2] - r[:, 2, 0]) / s, (r[:, 0, 1] + r[:, 1, 0]) / s, 0.25 * s,
+                             (r[:, 1, 2] + r[:, 2, 1]) / s], axis=1)
+        else:
+            s = np.sqrt(1.0 + r[:, 2, 2] - r[:, 0, 0] - r[:, 1, 1]) * 2
+            q[m] = np.stack([(r[:, 1, 0] - r[:, 0, 1]) / s, (r[:, 0, 2] + r[:, 2, 0]) / s,
+                             (r[:, 1, 2] + r[:, 2, 1]) / s, 0.25 * s], axis=1)
+    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+@dataclass
+class UnitCubeTransform:
+    """Maps world coordinates into the unit cube: x_unit = (x_world − offset) · scale + 0.5.
+
+    `scale` is isotropic (1 / longest side, with margin), so shapes and scale ratios survive.
+    """
+
+    scale: float
+    offset: np.ndarray  # (3,) world-space centre of the bounding box
+
+    def to_unit(self, x: np.ndarray) -> np.ndarray:
+        return ((np.asarray(x, dtype=np.float64) - self.offset) * self.scale + 0.5).astype(np.float32)
+
+    def to_world(self, u: np.ndarray) -> np.ndarray:
+        return ((np.asarray(u, dtype=np.float64) - 0.5) / self.scale + self.offset).astype(np.float32)
+
+
+@dataclass
+class SplatCloud:
+    """N Gaussians: centres, log std-devs, rotations, opacity logits, SH colour and extras.
+
+    `rotations` are kept exactly as stored (w,x,y,z, not always unit); `quats` gives them
+    normalised. `sh_rest` keeps the file's f_rest order (channel-major: all R, then G, then B).
+    `extras` holds every other per-Gaussian property in file order, with its dtype.
+    """
+
+    means: np.ndarray
+    log_scales: np.ndarray
+    rotations: np.ndarray
+    opacity_logits: np.ndarray
+    sh_dc: np.ndarray
+    sh_rest: np.ndarray
+    extras: dict[str, np.ndarray] = field(default_factory=dict)
+    property_order: list[str] = field(default_factory=list)
+    source: str | None = None
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_arrays(
+        cls,
+        means: np.ndarray,
+        log_scales: np.ndarray | None = None,
+        rotations: np.ndarray | None = None,
+        opacity_logits: np.ndarray | None = None,
+        sh_dc: np.ndarray | None = None,
+        sh_rest: np.ndarray | None = None,
+        rgb: np.ndarray | None = None,
+    ) -> "SplatCloud":
+        """Build a cloud from arrays; missing fields get neutral defaults (identity rotation,
+        std-dev 1 cm, opacity 0.9, grey or the given `rgb` in [0, 1])."""
+        means = np.ascontiguousarray(means, dtype=np.float32).reshape(-1, 3)
+        n = len(means)
+        if log_scales is None:
+            log_scales = np.full((n, 3), np.log(0.01), np.float32)
+        if rotations is None:
+            rotations = np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1))
+        if opacity_logits is None:
+            opacity_logits = np.full(n, np.log(0.9 / 0.1), np.float32)
+        if sh_dc is None:
+            colour = np.full((n, 3), 0.5, np.float32) if rgb is None else np.asarray(rgb, np.float32)
+            sh_dc = rgb_to_sh_dc(colour)
+        if sh_rest is None:
+            sh_rest = np.zeros((n, 0), np.float32)
+        cloud = cls(
+            means=means,
+            log_scales=np.ascontiguousarray(log_scales, np.float32).reshape(n, 3),
+            rotations=np.ascontiguousarray(rotations, np.float32).reshape(n, 4),
+            opacity_logits=np.ascontiguousarray(opacity_logits, np.float32).reshape(n),
+            sh_dc=np.ascontiguousarray(sh_dc, np.float32).reshape(n, 3),
+            sh_rest=np.ascontiguousarray(sh_rest, np.float32).reshape(n, -1),
+        )
+        cloud.property_order = cloud._default_order()
+        cloud.validate()
+        return cloud
+
+    def _default_order(self) -> list[str]:
+        names = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2"]
+        names += [f"f_rest_{i}" for i in range(self.sh_rest.shape[1])]
+        names += ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+        return names + [k for k in self.extras]
+
+    # ------------------------------------------------------------------ basic properties
+    def __len__(self) -> int:
+        return len(self.means)
+
+    @property
+    def sh_degree(self) -> int:
+        return _VALID_REST_COUNTS[self.sh_rest.shape[1]]
+
+    @property
+    def quats(self) -> np.ndarray:
+        """Unit quaternions (N,4) w,x,y,z (non-unit stored rotations normalised silently)."""
+        q = self.rotations.astype(np.float64)
+        return (q / np.linalg.norm(q, axis=1, keepdims=True)).astype(np.float32)
+
+    @property
+    def scales(self) -> np.ndarray:
+        """Standard deviations (N,3) in the cloud's length unit."""
+        return np.exp(self.log_scales)
+
+    @property
+    def opacities(self) -> np.ndarray:
+        """Opacity α in [0, 1] (sigmoid of the stored logit)."""
+        return (1.0 / (1.0 + np.exp(-self.opacity_logits.astype(np.float64)))).astype(np.float32)
+
+    def rgb(self) -> np.ndarray:
+        """Base colour (N,3) in [0, 1] from the degree-0 SH coefficients."""
+        return np.clip(0.5 + SH_C0 * self.sh_dc, 0.0, 1.0).astype(np.float32)
+
+    def rotation_matrices(self) -> np.ndarray:
+        return quat_to_rotmat(self.rotations)
+
+    def covariances(self) -> np.ndarray:
+        """Covariance matrices Σ = R S Sᵀ Rᵀ (N,3,3), float64."""
+        R = self.rotation_matrices()
+        RS = R * np.exp(self.log_scales.astype(np.float64))[:, None, :]
+        return RS @ RS.transpose(0, 2, 1)
+
+    def set_covariances(self, cov: np.ndarray) -> None:
+        """Replace scales and rotations by the eigen-decomposition of symmetric `cov` (N,3,3)."""
+        cov = 0.5 * (np.asarray(cov, np.float64) + np.asarray(cov, np.float64).transpose(0, 2, 1))
+        evals, evecs = np.linalg.eigh(cov)
+        det = np.linalg.det(evecs)
+        evecs[:, :, 2] *= np.where(det < 0, -1.0, 1.0)[:, None]
+        self.log_scales = (0.5 * np.log(np.maximum(evals, 1e-30))).astype(np.float32)
+        self.rotations = rotmat_to_quat(evecs).astype(np.float32)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned bounds (min (3,), max (3,)) of the Gaussian centres."""
+        return self.means.min(axis=0), self.means.max(axis=0)
+
+    def unit_cube_transform(self, margin: float = 0.05) -> UnitCubeTransform:
+        """Isotropic transform putting the centres into [margin, 1 − margin]³, centred."""
+        lo, hi = self.bounds()
+        extent = float(np.max(hi - lo))
+        scale = (1.0 - 2.0 * margin) / extent if extent > 0 else 1.0
+        return UnitCubeTransform(scale=scale, offset=((lo + hi) / 2.0).astype(np.float64))
+
+    def normalized(self, margin: float = 0.05) -> tuple["SplatCloud", UnitCubeTransform]:
+        """A copy scaled into the unit cube (sizes scaled too) and the transform that did it."""
+        tf = self.unit_cube_transform(margin)
+        out = self.copy()
+        out.means = tf.to_unit(self.means)
+        out.log_scales = (self.log_scales + np.float32(np.log(tf.scale))).astype(np.float32)
+        return out, tf
+
+    # ------------------------------------------------------------------ attributes
+    def has(self, name: str) -> bool:
+        return name in self.extras
+
+    def get(self, name: str) -> np.ndarray:
+        if name not in self.extras:
+            raise InputError(f"has no per-Gaussian property '{name}'", self.source)
+        return self.extras[name]
+
+    def set(self, name: str, values: np.ndarray, dtype: np.dtype | type = np.float32) -> None:
+        """Add or replace a per-Gaussian attribute (appended after the existing properties)."""
+        arr = np.ascontiguousarray(values, dtype=dtype).reshape(-1)
+        if len(arr) != len(self):
+            raise ValueError(f"attribute {name!r} has {len(arr)} values for {len(self)} Gaussians")
+        if name not in self.extras:
+            self.property_order.append(name)
+        self.extras[name] = arr
+
+    def set_materials(self, material_id: np.ndarray, E_pa: np.ndarray, nu: np.ndarray,
+                      density_kg_m3: np.ndarray) -> None:
+        """Write the material attributes read by Pixie/PhysGaussian tools (id, E Pa, ν, ρ kg/m³)."""
+        self.set("material_id", material_id, np.int32)
+        self.set("E", E_pa, np.float32)
+        self.set("nu", nu, np.float32)
+        self.set("density", density_kg_m3, np.float32)
+
+    def has_materials(self) -> bool:
+        return all(name in self.extras for name in MATERIAL_ATTRIBUTES)
+
+    def get_materials(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(material_id int32, E Pa, ν, ρ kg/m³); a clear error when the cloud has none."""
+        missing = [n for n in MATERIAL_ATTRIBUTES if n not in self.extras]
+        if missing:
+            raise InputError(f"has no material attributes ({', '.join(missing)} missing); "
+                             "run `pixie annotate` first", self.source)
+        return (self.extras["material_id"].astype(np.int32), self.extras["E"].astype(np.float32),
+                self.extras["nu"].astype(np.float32), self.extras["density"].astype(np.float32))
+
+    # ------------------------------------------------------------------ copies and subsets
+    def copy(self) -> "SplatCloud":
+        return SplatCloud(
+            means=self.means.copy(), log_scales=self.log_scales.copy(), rotations=self.rotations.copy(),
+            opacity_logits=self.opacity_logits.copy(), sh_dc=self.sh_dc.copy(), sh_rest=self.sh_rest.copy(),
+            extras={k: v.copy() for k, v in self.extras.items()}, property_order=list(self.property_order),
+            source=self.source,
+        )
+
+    def subset(self, index: np.ndarray) -> "SplatCloud":
+        """A new cloud with the Gaussians selected by a boolean mask or an index array."""
+        return SplatCloud(
+            means=self.means[index], log_scales=self.log_scales[index], rotations=self.rotations[index],
+            opacity_logits=self.opacity_logits[index], sh_dc=self.sh_dc[index], sh_rest=self.sh_rest[index],
+            extras={k: v[index] for k, v in self.extras.items()}, property_order=list(self.property_order),
+            source=self.source,
+        )
+
+    @staticmethod
+    def concatenate(clouds: list["SplatCloud"]) -> "SplatCloud":
+        """Join clouds with the same SH degree; extras present in every cloud are kept."""
+        if not clouds:
+            raise ValueError("nothing to concatenate")
+        degrees = {c.sh_rest.shape[1] for c in clouds}
+        if len(degrees) != 1:
+            raise ValueError("clouds have different SH degrees")
+        common = [k for k in clouds[0].extras if all(k in c.extras for c in clouds)]
+        out = SplatCloud(
+            means=np.concatenate([c.means for c in clouds]),
+            log_scales=np.concatenate([c.log_scales for c in clouds]),
+            rotations=np.concatenate([c.rotations for c in clouds]),
+            opacity_logits=np.concatenate([c.opacity_logits for c in clouds]),
+            sh_dc=np.concatenate([c.sh_dc for c in clouds]),
+            sh_rest=np.concatenate([c.sh_rest for c in clouds]),
+            extras={k: np.concatenate([c.extras[k] for c in clouds]) for k in common},
+        )
+        out.property_order = [p for p in clouds[0].property_order if p in common or not _is_extra(p)]
+        return out
+
+    # ------------------------------------------------------------------ validation
+    def validate(self) -> None:
+        """Raise InputError naming the file for empty clouds, non-finite values or zero quaternions."""
+        src = self.source or "<splat>"
+        if len(self.means) == 0:
+            raise InputError("has zero vertices", src)
+        if not np.isfinite(self.means).all():
+            bad = int(np.argmax(~np.isfinite(self.means).all(axis=1)))
+            raise InputError(f"non-finite position (NaN/inf) at vertex {bad}", src)
+        if not np.isfinite(self.log_scales).all():
+            bad = int(np.argmax(~np.isfinite(self.log_scales).all(axis=1)))
+            raise InputError(f"non-finite scale (NaN/inf) at vertex {bad}", src)
+        norms = np.linalg.norm(self.rotations.astype(np.float64), axis=1)
+        if not (np.isfinite(norms) & (norms > 1e-12)).all():
+            bad = int(np.argmax(~(np.isfinite(norms) & (norms > 1e-12))))
+            raise InputError(f"zero-length or non-finite rotation quaternion at vertex {bad}", src)
+
+    # ------------------------------------------------------------------ I/O
+    @classmethod
+    def read(cls, path: str | Path) -> "SplatCloud":
+        return read_splat(path)
+
+    def write(self, path: str | Path) -> None:
+        write_splat(self, path)
+
+
+def rgb_to_sh_dc(rgb: np.ndarray) -> np.ndarray:
+    """Degree-0 SH coefficients that reproduce base colour `rgb` in [0, 1]."""
+    return ((np.asarray(rgb, dtype=np.float32) - 0.5) / SH_C0).astype(np.float32)
+
+
+def _is_extra(name: str) -> bool:
+    core = {p for group in _CORE_GROUPS.values() for p in group}
+    return name not in core and not name.startswith("f_rest_")
+
+
+def read_splat(path: str | Path) -> SplatCloud:
+    """Read a 3DGS `.ply` (binary either endian, or ascii) into a validated SplatCloud.
+
+    Raises InputError (file name + problem) for anything that is not a usable splat.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError("no such file", path)
+    if path.is_dir():
+        raise InputError("is a directory, not a .ply file", path)
+    with open(path, "rb") as fh:
+        magic = fh.read(4)
+    if magic[:3] != b"ply":
+        raise InputError("not a PLY file (missing 'ply' magic)", path)
+    try:
+        ply = PlyData.read(str(path), mmap=False)
+    except Exception as exc:  # plyfile raises several types for malformed or short files
+        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if "early end" in text.lower() or "truncat" in text.lower() or "expected" in text.lower():
+            raise InputError(f"truncated or malformed PLY data ({text})", path) from None
+        raise InputError(f"cannot parse PLY ({text})", path) from None
+    if "vertex" not in [el.name for el in ply.elements]:
+        raise InputError("has no 'vertex' element", path)
+    data = ply["vertex"].data
+    names = list(data.dtype.names or ())
+    required = [p for group in _CORE_GROUPS.values() for p in group]
+    missing = [p for p in required if p not in names]
+    if missing:
+        raise InputError(f"missing required vertex properties: {', '.join(missing)}", path)
+    rest_names = [p for p in names if p.startswith("f_rest_")]
+    expected_rest = [f"f_rest_{i}" for i in range(len(rest_names))]
+    if len(rest_names) not in _VALID_REST_COUNTS or sorted(rest_names, key=_rest_index) != expected_rest:
+        raise InputError(
+            f"has {len(rest_names)} f_rest properties; a 3DGS file has 0, 9, 24 or 45 (f_rest_0…f_rest_N-1)",
+            path,
+        )
+
+    def columns(props: tuple[str, ...] | list[str]) -> np.ndarray:
+        out = np.empty((len(data), len(props)), dtype=np.float32)
+        for j, p in enumerate(props):
+            out[:, j] = data[p]
+        return out
+
+    cloud = SplatCloud(
+        means=columns(_CORE_GROUPS["means"]),
+        log_scales=columns(_CORE_GROUPS["log_scales"]),
+        rotations=columns(_CORE_GROUPS["rotations"]),
+        opacity_logits=columns(_CORE_GROUPS["opacity_logits"])[:, 0].copy(),
+        sh_dc=columns(_CORE_GROUPS["sh_dc"]),
+        sh_rest=columns(expected_rest),
+        extras={p: np.ascontiguousarray(data[p]).astype(data.dtype[p].newbyteorder("=")) for p in names
+                if _is_extra(p)},
+        property_order=names,
+        source=str(path),
+    )
+    cloud.validate()
+    return cloud
+
+
+def _rest_index(name: str) -> int:
+    m = re.fullmatch(r"f_rest_(\d+)", name)
+    return int(m.group(1)) if m else -1
+
+
+def _column(cloud: SplatCloud, name: str) -> np.ndarray:
+    for attr, group in _CORE_GROUPS.items():
+        if name in group:
+            arr = getattr(cloud, attr)
+            return arr if arr.ndim == 1 else arr[:, group.index(name)]
+    if name.startswith("f_rest_"):
+        return cloud.sh_rest[:, _rest_index(name)]
+    return cloud.extras[name]
+
+
+def to_structured(cloud: SplatCloud) -> np.ndarray:
+    """The vertex table as a little-endian structured array in the cloud's property order."""
+    order = list(cloud.property_order) or cloud._default_order()
+    present = set(order)
+    order += [f"f_rest_{i}" for i in range(cloud.sh_rest.shape[1]) if f"f_rest_{i}" not in present]
+    order += [k for k in cloud.extras if k not in present]
+    order = [n for n in order if not n.startswith("f_rest_") or _rest_index(n) < cloud.sh_rest.shape[1]]
+    order = [n for n in order if not _is_extra(n) or n in cloud.extras]
+    dtypes = []
+    for name in order:
+        dt = cloud.extras[name].dtype if name in cloud.extras else np.dtype(np.float32)
+        dtypes.append((name, dt.newbyteorder("<")))
+    table = np.empty(len(cloud), dtype=dtypes)
+    for name in order:
+        table[name] = _column(cloud, name)
+    return table
+
+
+def write_splat(cloud: SplatCloud, path: str | Path) -> None:
+    """Write `cloud` as binary little-endian 3DGS `.ply`, atomically (temp file + rename)."""
+    cloud.validate()
+    element = PlyElement.describe(to_structured(cloud), "vertex")
+    with atomic_path(path, suffix=".ply.tmp") as tmp:
+        PlyData([element], text=False, byte_order="<").write(str(tmp))
