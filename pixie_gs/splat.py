@@ -355,7 +355,7 @@ def read_splat(path: str | Path) -> SplatCloud:
     if magic[:3] != b"ply":
         raise InputError("not a PLY file (missing 'ply' magic)", path)
     try:
-        ply = PlyData.read(str(path), mmap=False)
+        ply = PlyData.read(str(path))
     except Exception as exc:  # plyfile raises several types for malformed or short files
         text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         if "early end" in text.lower() or "truncat" in text.lower() or "expected" in text.lower():

@@ -1,0 +1,205 @@
+"""Simulator throughput: particle-substeps per second for an elastic block, and memory per particle.
+
+For each size (default 100k and 1M particles) an elastic jelly block (E = 1e5 Pa, ν = 0.3,
+ρ = 1000 kg/m³, 8 particles per cell) rests on the ground under gravity; the Warp MPMSolver
+runs `--warmup` substeps (kernel compilation, caches), then `--substeps` timed substeps
+(device synchronised before and after). Figures printed:
+
+- particle-substeps/s = particles × substeps / seconds;
+- memory per particle: bytes of the solver's Warp arrays whose length is the particle count
+  (particle state), and all of its Warp arrays (grid included) divided by the particle count;
+- baseline ratio: the same substep written straightforwardly in numpy (quadratic B-spline
+  MLS-MPM, fixed-corotated stress, scatter with np.bincount), timed in this same run on a small
+  block (`--baseline-particles`), and Warp's throughput divided by it. The 100k → 1M scaling
+  (throughput ratio) is printed too.
+
+Usage:
+    python benchmarks/bench_sim_throughput.py --device cpu --sizes 100000 1000000
+    python benchmarks/bench_sim_throughput.py --device cuda          # the H100 figures
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import time
+
+import numpy as np
+
+E_PA, NU, RHO = 1e5, 0.3, 1000.0
+PARTICLES_PER_CELL = 8
+
+
+def block_problem(n_target: int, ppc: int = PARTICLES_PER_CELL):
+    """(Particles, Scene): a cube block of ≈ n_target particles on a lattice of `ppc` per cell,
+    resting on the ground in the middle of a domain twice its size."""
+    from pixie_gs.sim.particles import Particles
+    from pixie_gs.sim.scene import Scene
+
+    per_axis = max(1, round(ppc ** (1 / 3)))
+    side_particles = max(2, round(n_target ** (1 / 3)))
+    cells = max(2, math.ceil(side_particles / per_axis))
+    block_m = 0.5
+    dx = block_m / cells
+    grid = 2 * cells + 8
+    spacing = dx / per_axis
+    ax = (np.arange(side_particles) + 0.5) * spacing
+    x = np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)
+    side = side_particles * spacing
+    x = x - np.array([side / 2, side / 2, 0.0])
+    scene = Scene.from_dict({"object": {"size_m": side, "position": [0, 0, 0]},
+                             "domain": {"size_m": grid * dx, "grid": grid}})
+    particles = Particles(x=x, v=np.zeros(3), volume=spacing ** 3, E=E_PA, nu=NU, density=RHO, material_id=0)
+    return particles, scene
+
+
+def warp_arrays_bytes(solver, n: int) -> tuple[int, int]:
+    """(bytes of the solver's particle-length Warp arrays, bytes of all its Warp arrays)."""
+    import warp as wp
+
+    seen: set[int] = set()
+    per_particle = total = 0
+    for value in vars(solver).values():
+        values = value.values() if isinstance(value, dict) else value if isinstance(value, (list, tuple)) else [value]
+        for arr in values:
+            if isinstance(arr, wp.array) and id(arr) not in seen:
+                seen.add(id(arr))
+                nbytes = arr.capacity
+                total += nbytes
+                if arr.shape[0] == n and arr.ndim == 1:
+                    per_particle += nbytes
+    return per_particle, total
+
+
+def time_warp(n_target: int, device: str, warmup: int, substeps: int) -> dict:
+    import warp as wp
+
+    from pixie_gs.sim.solver import MPMSolver
+
+    particles, scene = block_problem(n_target)
+    n = len(particles)
+    solver = MPMSolver(particles, scene, device)
+    dt = float(solver.dt)
+    # step_frame(k·dt) runs k substeps of the CFL dt
+    solver.step_frame(warmup * dt)
+    wp.synchronize_device(device)
+    t0 = time.perf_counter()
+    solver.step_frame(substeps * dt)
+    wp.synchronize_device(device)
+    seconds = time.perf_counter() - t0
+    x = np.asarray(solver.positions())
+    assert np.isfinite(x).all(), "block diverged"
+    pp, total = warp_arrays_bytes(solver, n)
+    return {"n": n, "seconds": seconds, "substeps": substeps, "rate": n * substeps / seconds,
+            "bytes_particle_state": pp / n, "bytes_all_per_particle": total / n, "dt": dt}
+
+
+# ---------------------------------------------------------------------------------- numpy baseline
+def numpy_substep(state: dict, dx: float, dt: float, grid_n: int, mu: float, lam: float,
+                  vol: float, mass: float, gravity: np.ndarray) -> None:
+    """One MLS-MPM substep (P2G, grid update with gravity and sticky walls, G2P) in numpy."""
+    x, v, C, F = state["x"], state["v"], state["C"], state["F"]
+    inv_dx = 1.0 / dx
+    base = np.floor(x * inv_dx - 0.5).astype(np.int64)
+    fx = x * inv_dx - base
+    w = [0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2]
+    U, S, Vt = np.linalg.svd(F)
+    R = U @ Vt
+    J = S.prod(axis=1)
+    tau = 2 * mu * (F - R) @ F.transpose(0, 2, 1) + (lam * (J - 1) * J)[:, None, None] * np.eye(3)
+    affine = -dt * vol * 4 * inv_dx * inv_dx * tau + mass * C
+    size = grid_n ** 3
+    g_m = np.zeros(size)
+    g_mv = np.zeros((size, 3))
+    offsets = [(i, j, k) for i in range(3) for j in range(3) for k in range(3)]
+    cache = []
+    for o in offsets:
+        off = np.array(o)
+        weight = w[o[0]][:, 0] * w[o[1]][:, 1] * w[o[2]][:, 2]
+        dpos = (off - fx) * dx
+        node = base + off
+        flat = (node[:, 0] * grid_n + node[:, 1]) * grid_n + node[:, 2]
+        cache.append((weight, dpos, flat))
+        mv = weight[:, None] * (mass * v + np.einsum("nij,nj->ni", affine, dpos))
+        g_m += np.bincount(flat, weight * mass, size)
+        for d in range(3):
+            g_mv[:, d] += np.bincount(flat, mv[:, d], size)
+    has = g_m > 0
+    g_v = np.zeros_like(g_mv)
+    g_v[has] = g_mv[has] / g_m[has, None] + dt * gravity
+    idx = np.stack(np.unravel_index(np.arange(size), (grid_n,) * 3), 1)
+    wall = ((idx < 3) | (idx > grid_n - 4)).any(axis=1)
+    g_v[wall] = 0.0
+    new_v = np.zeros_like(v)
+    new_C = np.zeros_like(C)
+    for weight, dpos, flat in cache:
+        gv = g_v[flat]
+        new_v += weight[:, None] * gv
+        new_C += 4 * inv_dx * inv_dx * weight[:, None, None] * gv[:, :, None] * dpos[:, None, :]
+    state["v"], state["C"] = new_v, new_C
+    state["x"] = x + dt * new_v
+    state["F"] = (np.eye(3) + dt * new_C) @ F
+
+
+def time_numpy(n_target: int, substeps: int) -> dict:
+    particles, scene = block_problem(n_target)
+    n = len(particles)
+    dx = scene.dx
+    origin = scene.domain_origin()
+    grid_n = scene.domain.grid + 1
+    mu = E_PA / (2 * (1 + NU))
+    lam = E_PA * NU / ((1 + NU) * (1 - 2 * NU))
+    wave = math.sqrt((lam + 2 * mu) / RHO)
+    dt = 0.4 * dx / wave
+    vol = float(particles.volume[0])
+    state = {"x": particles.x.astype(np.float64) - origin, "v": np.zeros((n, 3)), "C": np.zeros((n, 3, 3)),
+             "F": np.tile(np.eye(3), (n, 1, 1))}
+    g = np.array([0.0, 0.0, -9.81])
+    numpy_substep(state, dx, dt, grid_n, mu, lam, vol, vol * RHO, g)  # warm-up
+    t0 = time.perf_counter()
+    for _ in range(substeps):
+        numpy_substep(state, dx, dt, grid_n, mu, lam, vol, vol * RHO, g)
+    seconds = time.perf_counter() - t0
+    return {"n": n, "seconds": seconds, "substeps": substeps, "rate": n * substeps / seconds}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[100_000, 1_000_000])
+    parser.add_argument("--warmup", type=int, default=3, help="untimed substeps first (compilation)")
+    parser.add_argument("--substeps", type=int, default=0, help="timed substeps (default: 20 cpu, 200 cuda)")
+    parser.add_argument("--baseline-particles", type=int, default=20_000)
+    parser.add_argument("--baseline-substeps", type=int, default=3)
+    args = parser.parse_args()
+
+    from pixie_gs.devices import resolve_warp_device
+
+    device = resolve_warp_device(args.device)
+    substeps = args.substeps or (200 if device.startswith("cuda") else 20)
+    import warp as wp
+
+    name = wp.get_device(device).name if device.startswith("cuda") else "cpu"
+    print(f"device {device} ({name}); elastic block E={E_PA:g} Pa nu={NU} rho={RHO:g} kg/m3, "
+          f"{PARTICLES_PER_CELL} particles/cell; warm-up {args.warmup}, timed {substeps} substeps")
+    base = time_numpy(args.baseline_particles, args.baseline_substeps)
+    print(f"baseline numpy MLS-MPM  {base['n']:>9} particles  {base['rate'] / 1e6:10.3f} M particle-substeps/s "
+          f"({base['substeps']} substeps in {base['seconds']:.2f} s)")
+    results = []
+    for n in args.sizes:
+        r = time_warp(n, device, args.warmup, substeps)
+        results.append(r)
+        print(f"warp {device:<6} {r['n']:>12} particles  {r['rate'] / 1e6:10.3f} M particle-substeps/s "
+              f"({r['substeps']} substeps in {r['seconds']:.2f} s, dt {r['dt']:.2e} s)  "
+              f"memory {r['bytes_particle_state']:.0f} B/particle state, {r['bytes_all_per_particle']:.0f} B/particle "
+              f"incl. grid  ratio vs numpy baseline {r['rate'] / base['rate']:.1f}x")
+    if len(results) >= 2:
+        a, b = results[0], results[-1]
+        print(f"scaling {a['n']} -> {b['n']} particles: throughput ratio {b['rate'] / a['rate']:.2f}")
+    if device.startswith("cuda"):
+        top = results[-1]
+        print(f"target >= 200 M particle-substeps/s at 1M particles: "
+              f"{'MET' if top['rate'] >= 200e6 else 'NOT MET'} ({top['rate'] / 1e6:.1f} M at {top['n']})")
+
+
+if __name__ == "__main__":
+    main()

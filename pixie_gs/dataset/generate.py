@@ -1,0 +1,149 @@
+"""Generate a split of labelled objects: seeds, balanced class order, parallel workers, index.
+
+Layout: OUT_DIR/<split>/<index:06d>_<class>.ply with a sidecar .json (the object's index record)
+and OUT_DIR/<split>/index.json listing every object. A split is written into a hidden temporary
+directory and renamed into place when complete, so a failed run leaves no partial split.
+Object i's seed depends only on (seed, split, i): the bytes do not depend on the worker count.
+"""
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..progress import progress
+from .assemble import build_object
+from .labels import ClassSpec, load_class_table
+
+SPLITS = ("train", "val", "test")
+# Mixed into every object seed so that the splits never share a seed (see object_seed).
+SPLIT_SALT = {"train": 0x7261696E, "val": 0x76616C00, "test": 0x74657374}
+INDEX_NAME = "index.json"
+FORMAT_VERSION = 1
+
+
+def object_seed(seed: int, split: str, index: int) -> int:
+    """64-bit seed of object `index` of `split` (SeedSequence of (seed, split salt, index))."""
+    if split not in SPLIT_SALT:
+        raise InputError(f"unknown split '{split}' (choose from {', '.join(SPLITS)})")
+    state = np.random.SeedSequence([int(seed), SPLIT_SALT[split], int(index)]).generate_state(2, np.uint32)
+    return int(state[0]) << 32 | int(state[1])
+
+
+def class_for_index(index: int, classes: list[str]) -> str:
+    """Round-robin class order: every class gets ⌊N/k⌋ or ⌈N/k⌉ of N objects."""
+    return classes[index % len(classes)]
+
+
+def object_stem(index: int, class_name: str) -> str:
+    return f"{index:06d}_{class_name}"
+
+
+@dataclass(frozen=True)
+class ObjectTask:
+    """Everything a worker needs to build and write one object (picklable, spawn-safe)."""
+
+    index: int
+    class_name: str
+    seed: int
+    n_gaussians: int
+    directory: str
+    table_path: str | None
+
+
+_TABLE_CACHE: dict[str | None, dict[str, ClassSpec]] = {}
+
+
+def _table(path: str | None) -> dict[str, ClassSpec]:
+    if path not in _TABLE_CACHE:
+        _TABLE_CACHE[path] = load_class_table(path)
+    return _TABLE_CACHE[path]
+
+
+def write_object(task: ObjectTask) -> dict:
+    """Build object `task.index` and write its .ply and .json; returns its index entry."""
+    spec = _table(task.table_path)[task.class_name]
+    cloud, record = build_object(spec, task.seed, task.n_gaussians)
+    stem = object_stem(task.index, task.class_name)
+    directory = Path(task.directory)
+    record = {"index": task.index, "file": f"{stem}.ply", **record}
+    cloud.write(directory / f"{stem}.ply")
+    (directory / f"{stem}.json").write_text(json.dumps(record, indent=1) + "\n")
+    return {"index": task.index, "class": task.class_name, "file": record["file"], "seed": task.seed,
+            "gaussians": record["gaussians"], "parts": [p["name"] for p in record["parts"]]}
+
+
+def resolve_classes(table: dict[str, ClassSpec], names: list[str] | None) -> list[str]:
+    """The requested class names in table order (all when `names` is empty); InputError for unknowns."""
+    if not names:
+        return list(table)
+    unknown = [n for n in names if n not in table]
+    if unknown:
+        raise InputError(f"unknown class(es) {', '.join(unknown)} (choose from {', '.join(table)})")
+    return [n for n in table if n in set(names)]
+
+
+def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None = None, seed: int = 0,
+                   split: str = "train", workers: int = 1, n_gaussians: int = 50_000,
+                   table_path: str | Path | None = None, force: bool = False) -> Path:
+    """Write `count` objects of `split` under `out_dir`; returns the split directory.
+
+    Classes are assigned round-robin; objects are built in `workers` spawned processes (1: in this
+    process). Refuses to replace an existing split unless `force`.
+    """
+    if count < 1:
+        raise InputError(f"--count must be ≥ 1 (got {count})")
+    if n_gaussians < 100:
+        raise InputError(f"--gaussians must be ≥ 100 (got {n_gaussians})")
+    if workers < 1:
+        raise InputError(f"--workers must be ≥ 1 (got {workers})")
+    table_arg = None if table_path is None else str(Path(table_path).resolve())
+    table = _table(table_arg)
+    chosen = resolve_classes(table, classes)
+    object_seed(seed, split, 0)  # validates the split name
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError("exists and is not a directory", out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    final = out_dir / split
+    if final.exists() and not force:
+        raise InputError(f"already holds a '{split}' split (use --force to replace it)", final)
+    partial = out_dir / f".{split}.partial-{os.getpid()}"
+    if partial.exists():
+        shutil.rmtree(partial)
+    partial.mkdir()
+    tasks = [ObjectTask(i, class_for_index(i, chosen), object_seed(seed, split, i), n_gaussians, str(partial),
+                        table_arg) for i in range(count)]
+    try:
+        entries = _run_tasks(tasks, workers)
+        index = {"format_version": FORMAT_VERSION, "split": split, "seed": int(seed), "count": count,
+                 "gaussians_requested": n_gaussians, "classes": chosen,
+                 "class_counts": {c: sum(e["class"] == c for e in entries) for c in chosen},
+                 "objects": entries}
+        (partial / INDEX_NAME).write_text(json.dumps(index, indent=1) + "\n")
+        if final.exists():
+            old = out_dir / f".{split}.old-{os.getpid()}"
+            final.rename(old)
+            partial.rename(final)
+            shutil.rmtree(old)
+        else:
+            partial.rename(final)
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)
+        raise
+    return final
+
+
+def _run_tasks(tasks: list[ObjectTask], workers: int) -> list[dict]:
+    desc = "generate objects"
+    if workers == 1 or len(tasks) == 1:
+        return [write_object(t) for t in progress(tasks, desc, total=len(tasks), unit="obj")]
+    ctx = multiprocessing.get_context("spawn")
+    with ctx.Pool(processes=min(workers, len(tasks))) as pool:
+        return list(progress(pool.imap(write_object, tasks, chunksize=1), desc, total=len(tasks), unit="obj"))

@@ -1,0 +1,144 @@
+"""The forward model that diagnosis fits: simulate a (scene, cloud) and read the tracked points.
+
+Each evaluation runs the Warp MPM (`pixie_gs.sim.run.simulate`) and returns the simulated
+positions of the measured points (their Gaussians `ids`) at the measured times `t`, linearly
+interpolated between simulated frames, in the splat's coordinates.
+
+CPU cost is the constraint, so large models are fitted on a REDUCED model — a random subset of
+the Gaussians (always keeping the tracked ones) on a coarser grid — with a delta correction:
+  prediction(θ) = full(θ₀) + [reduced(θ) − reduced(θ₀)]
+where θ₀ is the current model. The reduced model only has to get the CHANGE an effect makes
+right; the full model's own baseline (and its discretisation) is reused unchanged. Particle
+volumes are cell volume shared by the particles in a cell (sim/run.py), so a subset keeps the
+object's mass, and the coarse grid keeps the same physics at lower resolution.
+"""
+from __future__ import annotations
+
+import copy
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..progress import is_quiet, set_quiet
+from ..splat import SplatCloud
+from .measured import MeasuredTracks
+
+
+@dataclass
+class Fidelity:
+    """How to reduce a large model for fitting: at most `max_particles` Gaussians and a grid of
+    `grid_scale` × the scene's cells (at least `min_grid`)."""
+
+    max_particles: int = 6000
+    grid_scale: float = 0.5
+    min_grid: int = 24
+    seed: int = 0
+
+
+def sim_schedule(t: np.ndarray) -> tuple[int, float]:
+    """(frames, fps) of a simulation from t = 0 that covers the measured times `t` (s)."""
+    dt = float(np.median(np.diff(t)))
+    fps = 1.0 / dt
+    frames = int(np.ceil(t[-1] * fps - 1e-6)) + 1
+    return max(frames, 2), fps
+
+
+def sample_at(xs: np.ndarray, fps: float, t: np.ndarray) -> np.ndarray:
+    """Positions (T,M,3) at times `t` from frames `xs` (F,M,3) at t_i = i/fps (linear in time)."""
+    u = np.clip(np.asarray(t) * fps, 0.0, len(xs) - 1.0)
+    i0 = np.minimum(np.floor(u + 1e-9).astype(int), len(xs) - 1)
+    i1 = np.minimum(i0 + 1, len(xs) - 1)
+    w = (u - i0)[:, None, None]
+    return (1.0 - w) * xs[i0] + w * xs[i1]
+
+
+class ForwardModel:
+    """Simulates model variants and returns the tracked points, counting runs and seconds."""
+
+    def __init__(self, cloud: SplatCloud, tracks: MeasuredTracks, device: str = "auto",
+                 fill: bool = False, fidelity: Fidelity | None = None) -> None:
+        self.cloud = cloud
+        self.tracks = tracks
+        self.device = device
+        self.fill = fill
+        self.frames, self.fps = sim_schedule(tracks.t)
+        self.fidelity = fidelity or Fidelity()
+        self.runs = 0
+        self.seconds = 0.0
+        self.keep: np.ndarray | None = None      # Gaussians of the reduced model (None: not reduced)
+        self.reduced_ids: np.ndarray | None = None
+        self.grid_scale = 1.0
+        if len(cloud) > self.fidelity.max_particles:
+            self.keep, self.reduced_ids = reduced_subset(len(cloud), tracks.ids, self.fidelity)
+            self.grid_scale = self.fidelity.grid_scale
+        self._full_base: np.ndarray | None = None
+        self._reduced_base: np.ndarray | None = None
+
+    @property
+    def is_reduced(self) -> bool:
+        return self.keep is not None
+
+    # ------------------------------------------------------------------ simulation
+    def _run(self, cloud: SplatCloud, scene, ids: np.ndarray) -> np.ndarray:
+        from ..sim.run import simulate
+
+        start = time.perf_counter()
+        quiet = is_quiet()
+        set_quiet(True)  # one bar per evaluation would flood the terminal; the fit shows its own
+        try:
+            traj = simulate(cloud, scene, self.frames, self.fps, device=self.device, fill=self.fill)
+        finally:
+            set_quiet(quiet)
+            self.runs += 1
+            self.seconds += time.perf_counter() - start
+        return sample_at(traj.x[:, ids].astype(np.float64), self.fps, self.tracks.t)
+
+    def simulate_full(self, scene, cloud: SplatCloud | None = None) -> np.ndarray:
+        """Tracked points (T,M,3) of the full model `cloud` (default: the input) in `scene`."""
+        return self._run(cloud if cloud is not None else self.cloud, scene, self.tracks.ids)
+
+    def _simulate_reduced(self, scene, cloud: SplatCloud) -> np.ndarray:
+        assert self.keep is not None and self.reduced_ids is not None
+        sub = cloud.subset(self.keep)
+        if self.grid_scale < 1.0:
+            coarse = copy.deepcopy(scene)
+            coarse.domain.grid = max(self.fidelity.min_grid, int(round(scene.domain.grid * self.grid_scale)))
+            try:
+                return self._run(sub, coarse, self.reduced_ids)
+            except InputError:
+                # the coarse grid's wider boundary band may not fit the object: keep the scene's grid
+                self.grid_scale = 1.0
+                if self._reduced_base is not None:
+                    raise RuntimeError("reduced grid changed after the baseline was set") from None
+        return self._run(sub, scene, self.reduced_ids)
+
+    def set_baseline(self, scene, cloud: SplatCloud | None = None,
+                     full_prediction: np.ndarray | None = None) -> np.ndarray:
+        """Make (scene, cloud) the current model θ₀; returns its full-model prediction."""
+        cloud = cloud if cloud is not None else self.cloud
+        self._reduced_base = None
+        self._full_base = full_prediction if full_prediction is not None else self.simulate_full(scene, cloud)
+        if self.is_reduced:
+            self._reduced_base = self._simulate_reduced(scene, cloud)
+        return self._full_base
+
+    def predict(self, scene, cloud: SplatCloud | None = None) -> np.ndarray:
+        """Predicted tracked points (T,M,3) of a model variant (delta-corrected when reduced)."""
+        cloud = cloud if cloud is not None else self.cloud
+        if not self.is_reduced:
+            return self.simulate_full(scene, cloud)
+        if self._full_base is None or self._reduced_base is None:
+            raise RuntimeError("call set_baseline() before predict()")
+        return self._full_base + (self._simulate_reduced(scene, cloud) - self._reduced_base)
+
+
+def reduced_subset(n: int, ids: np.ndarray, fidelity: Fidelity) -> tuple[np.ndarray, np.ndarray]:
+    """(kept Gaussian indices (sorted), positions of the tracked `ids` within them)."""
+    rng = np.random.default_rng(fidelity.seed)
+    tracked = np.unique(ids)
+    others = np.setdiff1d(np.arange(n), tracked)
+    extra = min(max(fidelity.max_particles - len(tracked), 0), len(others))
+    keep = np.sort(np.concatenate([tracked, rng.choice(others, extra, replace=False)]))
+    return keep, np.searchsorted(keep, ids)

@@ -1,0 +1,198 @@
+"""Warp kernels of one MLS-MPM/APIC substep with quadratic B-splines (Hu et al. 2018).
+
+One Warp module (compiled once per machine): P2G scatters mass, momentum and stress; the grid
+update turns momentum into velocity and applies forces and boundaries (and clears the scatter
+buffers for the next substep); G2P gathers velocity and its gradient, moves particles, updates
+F ← (I + dt·C)·F and applies the return mappings of sim/constitutive.py.
+Grid node (i, j, k) sits at world position origin + (i, j, k)·dx.
+"""
+from __future__ import annotations
+
+import warp as wp
+
+from .constitutive import (NO_YIELD, drucker_prager_return, fluid_return, kirchhoff_stress, snow_return,
+                           von_mises_return)
+
+
+@wp.struct
+class MaterialParams:
+    """Model parameters shared by all particles (from Scene.materials)."""
+
+    sand_alpha: float  # Drucker–Prager cone slope
+    snow_theta_c: float
+    snow_theta_s: float
+    snow_hardening: float
+    viscoplastic_relax_s: float  # η / (2μ) is per particle; this is η (Pa·s)
+    fluid_viscosity: float  # Pa·s
+
+
+@wp.struct
+class GridInfo:
+    origin: wp.vec3  # world position (m) of node (0, 0, 0)
+    dx: float  # m
+    inv_dx: float  # 1/m
+    dims: wp.vec3i  # node counts
+
+
+@wp.func
+def bspline_weights(fx: float) -> wp.vec3:
+    """Quadratic B-spline weights of the 3 nodes base, base+1, base+2 (fx = x/dx − base ∈ [0.5, 1.5))."""
+    return wp.vec3(0.5 * (1.5 - fx) * (1.5 - fx), 0.75 - (fx - 1.0) * (fx - 1.0), 0.5 * (fx - 0.5) * (fx - 0.5))
+
+
+@wp.kernel
+def p2g(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33),
+        F: wp.array(dtype=wp.mat33), volume: wp.array(dtype=float), mass: wp.array(dtype=float),
+        mu: wp.array(dtype=float), lam: wp.array(dtype=float), material: wp.array(dtype=wp.int32),
+        Jp: wp.array(dtype=float), fixed: wp.array(dtype=wp.int32), grid: GridInfo, mp: MaterialParams,
+        dt: float, grid_mass: wp.array3d(dtype=float), grid_momentum: wp.array3d(dtype=wp.vec3),
+        grid_fixed: wp.array3d(dtype=float)):
+    p = wp.tid()
+    xg = (x[p] - grid.origin) * grid.inv_dx
+    base = wp.vec3i(int(xg[0] - 0.5), int(xg[1] - 0.5), int(xg[2] - 0.5))
+    fx = xg - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
+    wx = bspline_weights(fx[0])
+    wy = bspline_weights(fx[1])
+    wz = bspline_weights(fx[2])
+    m = mass[p]
+    is_fixed = fixed[p]
+    stress = wp.mat33(0.0)
+    if is_fixed == 0:
+        stress = kirchhoff_stress(F[p], C[p], mu[p], lam[p], material[p], Jp[p], mp.snow_hardening,
+                                  mp.fluid_viscosity)
+    # MLS-MPM: stress and APIC affine momentum share one matrix; D⁻¹ = 4/dx² for quadratic splines
+    affine = (-dt * volume[p] * 4.0 * grid.inv_dx * grid.inv_dx) * stress + m * C[p]
+    mv = m * v[p]
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                w = wx[i] * wy[j] * wz[k]
+                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * grid.dx
+                gi = base[0] + i
+                gj = base[1] + j
+                gk = base[2] + k
+                wp.atomic_add(grid_momentum, gi, gj, gk, w * (mv + affine * dpos))
+                wp.atomic_add(grid_mass, gi, gj, gk, w * m)
+                if is_fixed != 0:
+                    wp.atomic_add(grid_fixed, gi, gj, gk, w)
+
+
+@wp.kernel
+def grid_update(grid_mass: wp.array3d(dtype=float), grid_momentum: wp.array3d(dtype=wp.vec3),
+                grid_fixed: wp.array3d(dtype=float), grid_velocity: wp.array3d(dtype=wp.vec3),
+                grid: GridInfo, box_lo: wp.vec3i, dt: float, time_s: float, gravity: wp.vec3,
+                wind_acc: wp.array(dtype=wp.vec3), wind_lo: wp.array(dtype=wp.vec3),
+                wind_hi: wp.array(dtype=wp.vec3), wind_timing: wp.array(dtype=wp.vec4), n_wind: int,
+                damping: float, air_drag: float, ground_enabled: int, ground_height: float,
+                friction: float, sticky_walls: int, boundary: int):
+    a, b, c = wp.tid()
+    i = a + box_lo[0]
+    j = b + box_lo[1]
+    k = c + box_lo[2]
+    m = grid_mass[i, j, k]
+    held = grid_fixed[i, j, k]
+    vel = wp.vec3(0.0)
+    if m > 0.0 and held <= 0.0:
+        vel = grid_momentum[i, j, k] / m
+        node = grid.origin + wp.vec3(float(i), float(j), float(k)) * grid.dx
+        acc = gravity
+        for w in range(n_wind):
+            timing = wind_timing[w]  # start_s, end_s, gust amplitude, gust frequency (Hz)
+            lo = wind_lo[w]
+            hi = wind_hi[w]
+            inside = node[0] >= lo[0] and node[1] >= lo[1] and node[2] >= lo[2]
+            inside = inside and node[0] <= hi[0] and node[1] <= hi[1] and node[2] <= hi[2]
+            if inside and time_s >= timing[0] and time_s < timing[1]:
+                gust = 1.0 + timing[2] * wp.sin(2.0 * wp.pi * timing[3] * time_s)
+                acc = acc + gust * wind_acc[w]
+        vel = vel + dt * acc
+        vel = vel * wp.exp(-damping * dt)  # viscous damping, exact for dv/dt = −c·v
+        vel = vel / (1.0 + air_drag * wp.length(vel) * dt)  # quadratic drag a = −k|v|v, implicit
+        if ground_enabled != 0 and node[2] <= ground_height and vel[2] < 0.0:
+            vn = -vel[2]  # speed into the ground, removed; Coulomb friction slows the tangential part
+            vt = wp.vec3(vel[0], vel[1], 0.0)
+            speed_t = wp.length(vt)
+            if speed_t <= friction * vn:
+                vel = wp.vec3(0.0)
+            else:
+                vel = vt * (1.0 - friction * vn / speed_t)
+        idx = wp.vec3i(i, j, k)
+        for d in range(3):
+            low = idx[d] < boundary
+            high = idx[d] >= grid.dims[d] - boundary
+            if low or high:
+                if sticky_walls != 0:
+                    vel = wp.vec3(0.0)
+                elif (low and vel[d] < 0.0) or (high and vel[d] > 0.0):
+                    vel[d] = 0.0
+    grid_velocity[i, j, k] = vel
+    grid_mass[i, j, k] = 0.0
+    grid_momentum[i, j, k] = wp.vec3(0.0)
+    grid_fixed[i, j, k] = 0.0
+
+
+@wp.kernel
+def g2p(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33),
+        F: wp.array(dtype=wp.mat33), mu: wp.array(dtype=float), lam: wp.array(dtype=float),
+        yield_stress: wp.array(dtype=float), material: wp.array(dtype=wp.int32), Jp: wp.array(dtype=float),
+        fixed: wp.array(dtype=wp.int32), grid: GridInfo, mp: MaterialParams, dt: float,
+        grid_velocity: wp.array3d(dtype=wp.vec3)):
+    p = wp.tid()
+    if fixed[p] != 0:
+        v[p] = wp.vec3(0.0)
+        C[p] = wp.mat33(0.0)
+        return
+    xg = (x[p] - grid.origin) * grid.inv_dx
+    base = wp.vec3i(int(xg[0] - 0.5), int(xg[1] - 0.5), int(xg[2] - 0.5))
+    fx = xg - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
+    wx = bspline_weights(fx[0])
+    wy = bspline_weights(fx[1])
+    wz = bspline_weights(fx[2])
+    new_v = wp.vec3(0.0)
+    new_C = wp.mat33(0.0)
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                w = wx[i] * wy[j] * wz[k]
+                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * grid.dx
+                gv = grid_velocity[base[0] + i, base[1] + j, base[2] + k]
+                new_v = new_v + w * gv
+                new_C = new_C + (4.0 * grid.inv_dx * grid.inv_dx * w) * wp.outer(gv, dpos)
+    v[p] = new_v
+    C[p] = new_C
+    # keep particles where their B-spline stencil stays inside the grid
+    xn = (x[p] + dt * new_v - grid.origin) * grid.inv_dx
+    for d in range(3):
+        xn[d] = wp.clamp(xn[d], 1.0, float(grid.dims[d]) - 2.001)
+    x[p] = grid.origin + xn * grid.dx
+
+    Fn = (wp.identity(n=3, dtype=float) + dt * new_C) * F[p]
+    mat = material[p]
+    ys = yield_stress[p]
+    if mat == 0 or mat == 1:  # jelly with a finite yield stress, metal: von Mises (permanent set)
+        if ys < NO_YIELD:
+            Fn = von_mises_return(Fn, mu[p], ys, 1.0)
+    elif mat == 2:
+        Fn = drucker_prager_return(Fn, mu[p], lam[p], mp.sand_alpha)
+    elif mat == 3:  # Perzyna: a fraction dt / (dt + η/(2μ)) of the excess flows this substep
+        relax = mp.viscoplastic_relax_s / (2.0 * mu[p])
+        Fn = von_mises_return(Fn, mu[p], ys, dt / (dt + relax))
+    elif mat == 4:
+        Fn = fluid_return(Fn)
+    elif mat == 5:
+        J_trial = wp.determinant(Fn)
+        Fn = snow_return(Fn, mp.snow_theta_c, mp.snow_theta_s)
+        Jp[p] = wp.clamp(Jp[p] * J_trial / wp.determinant(Fn), 0.2, 5.0)
+    F[p] = Fn
+
+
+@wp.kernel
+def add_velocity_in_region(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3),
+                           fixed: wp.array(dtype=wp.int32), lo: wp.vec3, hi: wp.vec3, dv: wp.vec3):
+    """Impulse: v += dv for every moving particle inside the box [lo, hi] (m)."""
+    p = wp.tid()
+    if fixed[p] != 0:
+        return
+    q = x[p]
+    if q[0] >= lo[0] and q[1] >= lo[1] and q[2] >= lo[2] and q[0] <= hi[0] and q[1] <= hi[1] and q[2] <= hi[2]:
+        v[p] = v[p] + dv

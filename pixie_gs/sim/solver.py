@@ -1,0 +1,310 @@
+"""MPMSolver: moves Particles through a Scene with MLS-MPM in NVIDIA Warp ("cpu" or "cuda").
+
+The substep dt comes from a CFL bound on the fastest elastic (P-)wave of the particles that move,
+c = √(E(1−ν)/(ρ(1+ν)(1−2ν))), and on the fastest particle; each frame is split into
+ceil(frame_dt / dt) substeps. After every frame a guard checks that velocities and deformation
+gradients are finite and bounded, and raises ComputationError naming the frame and material.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+# no init banner / per-module load lines on stdout (warp ≥ 1.10 uses log_level, not config.quiet)
+wp.config.log_level = wp.LOG_WARNING
+
+from ..devices import resolve_warp_device  # noqa: E402
+from ..errors import ComputationError, InputError
+from ..materials import FLUID, MATERIAL_NAMES, METAL, SAND, STATIONARY, VISCOPLASTIC
+from ..progress import stage
+from . import kernels
+from .constitutive import NO_YIELD
+from .particles import Particles
+from .scene import BOUNDARY_CELLS, Scene
+
+FAR = 1.0e30  # "unbounded" for regions and time windows passed to kernels
+MAX_STRETCH = 1.0e3  # ‖F‖ or 1/J beyond this counts as diverged
+
+
+def p_wave_speed(E_pa: np.ndarray, nu: np.ndarray, density: np.ndarray) -> np.ndarray:
+    """Elastic P-wave speed (m/s) √(E(1−ν)/(ρ(1+ν)(1−2ν))) per particle."""
+    E, nu, rho = (np.asarray(a, dtype=np.float64) for a in (E_pa, nu, density))
+    return np.sqrt(E * (1.0 - nu) / (rho * (1.0 + nu) * (1.0 - 2.0 * nu)))
+
+
+def lame_parameters(E_pa: np.ndarray, nu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(μ, λ) in Pa from Young's modulus and Poisson ratio."""
+    E, nu = np.asarray(E_pa, dtype=np.float64), np.asarray(nu, dtype=np.float64)
+    return E / (2.0 * (1.0 + nu)), E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+
+
+class MPMSolver:
+    """MLS-MPM/APIC solver. World units: m, s, kg, Pa; z up.
+
+    Attributes: time_s (simulated time), frame (frames done), dt (current stable substep, s),
+    substeps_last_frame, particle_substeps (total particles × substeps, for throughput figures),
+    stiffness_scale (≤ 1: factor applied to the stiffest parts' E to respect
+    scene.solver.max_substeps_per_frame; 1 when nothing was softened).
+    """
+
+    def __init__(self, particles: Particles, scene: Scene, device: str = "cpu") -> None:
+        particles.validate()
+        self.scene = scene
+        self.device = resolve_warp_device(device)
+        self.n = len(particles)
+        self.time_s = 0.0
+        self.frame = 0
+        self.substeps_last_frame = 0
+        self.particle_substeps = 0
+        self.stiffness_scale = 1.0
+        self._impulse_done = [False] * len(scene.impulses)
+
+        self.dx = scene.dx
+        self.dims = scene.grid_dims
+        self.origin = scene.domain_origin()
+        self._check_inside(particles.x)
+
+        self.material_id = particles.material_id.copy()
+        fixed = particles.fixed | (particles.material_id == STATIONARY)
+        for spec in scene.fixed:
+            if spec.region is not None:
+                fixed |= spec.region.contains(particles.x)
+            if spec.part_ids:
+                fixed |= np.isin(particles.part_id, spec.part_ids)
+        self.fixed = fixed
+        self._E = particles.E.astype(np.float64)
+        self._nu = particles.nu.astype(np.float64)
+        self._wave_speed = p_wave_speed(particles.E, particles.nu, particles.density)
+        self._moving = ~fixed
+
+        ys = particles.yield_stress.astype(np.float64).copy()
+        mats = scene.materials
+        for mid, strain in ((METAL, mats.metal_yield_strain), (VISCOPLASTIC, mats.viscoplastic_yield_strain)):
+            default = (self.material_id == mid) & ~np.isfinite(ys)
+            ys[default] = strain * self._E[default]
+        ys[~np.isfinite(ys)] = NO_YIELD
+
+        d = self.device
+        v0 = np.where(fixed[:, None], 0.0, particles.v).astype(np.float32)
+        self.x = wp.array(particles.x, dtype=wp.vec3, device=d)
+        self.v = wp.array(v0, dtype=wp.vec3, device=d)
+        self.C = wp.zeros(self.n, dtype=wp.mat33, device=d)
+        self.F = wp.array(np.tile(np.eye(3, dtype=np.float32), (self.n, 1, 1)), dtype=wp.mat33, device=d)
+        self.volume = wp.array(particles.volume, dtype=float, device=d)
+        self.mass = wp.array(particles.mass, dtype=float, device=d)
+        self.mu = wp.zeros(self.n, dtype=float, device=d)
+        self.lam = wp.zeros(self.n, dtype=float, device=d)
+        self._set_stiffness(np.ones(self.n))
+        self.yield_stress = wp.array(ys.astype(np.float32), dtype=float, device=d)
+        self.material = wp.array(self.material_id, dtype=wp.int32, device=d)
+        self.Jp = wp.ones(self.n, dtype=float, device=d)
+        self.fixed_flag = wp.array(fixed.astype(np.int32), dtype=wp.int32, device=d)
+
+        self.grid_mass = wp.zeros(self.dims, dtype=float, device=d)
+        self.grid_momentum = wp.zeros(self.dims, dtype=wp.vec3, device=d)
+        self.grid_fixed = wp.zeros(self.dims, dtype=float, device=d)
+        self.grid_velocity = wp.zeros(self.dims, dtype=wp.vec3, device=d)
+
+        self.grid_info = kernels.GridInfo()
+        self.grid_info.origin = wp.vec3(*self.origin)
+        self.grid_info.dx = self.dx
+        self.grid_info.inv_dx = 1.0 / self.dx
+        self.grid_info.dims = wp.vec3i(*self.dims)
+        self.material_params = self._material_params()
+        self._upload_wind()
+
+    # ------------------------------------------------------------------ set-up helpers
+    def _check_inside(self, x: np.ndarray) -> None:
+        g = (x - self.origin) / self.dx
+        hi = np.asarray(self.dims) - 2.0
+        outside = np.any((g < 1.0) | (g > hi), axis=1)
+        if outside.any():
+            top = self.origin + hi * self.dx
+            raise InputError(
+                f"{int(outside.sum())} of {self.n} particles lie outside the simulation domain "
+                f"[{np.round(self.origin + self.dx, 3).tolist()}, {np.round(top, 3).tolist()}] m; "
+                "enlarge domain.size_m or move object.position / domain.origin", "scene")
+
+    def _material_params(self) -> kernels.MaterialParams:
+        m = self.scene.materials
+        mp = kernels.MaterialParams()
+        s = math.sin(math.radians(m.sand_friction_angle_deg))
+        mp.sand_alpha = math.sqrt(2.0 / 3.0) * 2.0 * s / (3.0 - s)
+        mp.snow_theta_c = m.snow_critical_compression
+        mp.snow_theta_s = m.snow_critical_stretch
+        mp.snow_hardening = m.snow_hardening
+        mp.viscoplastic_relax_s = m.viscoplastic_viscosity_pa_s
+        mp.fluid_viscosity = m.fluid_viscosity_pa_s
+        return mp
+
+    def _upload_wind(self) -> None:
+        winds = self.scene.wind
+        acc = np.zeros((max(len(winds), 1), 3), np.float32)
+        lo = np.full_like(acc, -FAR)
+        hi = np.full_like(acc, FAR)
+        timing = np.zeros((len(acc), 4), np.float32)
+        for i, w in enumerate(winds):
+            acc[i] = w.acceleration
+            if w.region is not None:
+                lo[i], hi[i] = w.region.min, w.region.max
+            timing[i] = (w.start_s, FAR if w.end_s is None else w.end_s, w.gust_amplitude, w.gust_frequency_hz)
+        d = self.device
+        self.wind_acc = wp.array(acc, dtype=wp.vec3, device=d)
+        self.wind_lo = wp.array(lo, dtype=wp.vec3, device=d)
+        self.wind_hi = wp.array(hi, dtype=wp.vec3, device=d)
+        self.wind_timing = wp.array(timing, dtype=wp.vec4, device=d)
+        self._wind_peak = sum(float(np.linalg.norm(w.acceleration)) * (1.0 + w.gust_amplitude) for w in winds)
+
+    def _set_stiffness(self, scale: np.ndarray) -> None:
+        """Upload μ, λ for E·scale (scale < 1 only where stiffness had to be capped)."""
+        mu, lam = lame_parameters(self._E * scale, self._nu)
+        self.mu.assign(mu.astype(np.float32))
+        self.lam.assign(lam.astype(np.float32))
+        self._scale = scale
+
+    # ------------------------------------------------------------------ time stepping
+    @property
+    def max_wave_speed(self) -> float:
+        """Fastest elastic wave (m/s) among moving particles, after any stiffness cap."""
+        if not self._moving.any():
+            return 0.0
+        return float((self._wave_speed * np.sqrt(self._scale))[self._moving].max())
+
+    @property
+    def dt(self) -> float:
+        """Largest stable substep (s) from the elastic-wave CFL: cfl · dx / c_max."""
+        c = self.max_wave_speed
+        return math.inf if c == 0.0 else self.scene.solver.cfl * self.dx / c
+
+    def substeps_for(self, frame_dt_s: float) -> int:
+        """Substeps this frame needs: elastic CFL and velocity CFL, within max_substeps_per_frame."""
+        s = self.scene.solver
+        n_elastic = math.ceil(frame_dt_s / self.dt) if math.isfinite(self.dt) else 1
+        if n_elastic > s.max_substeps_per_frame:
+            self._cap_stiffness(frame_dt_s)
+            n_elastic = math.ceil(frame_dt_s / self.dt)
+        v_bound = self._speed_bound(frame_dt_s)
+        n_velocity = math.ceil(frame_dt_s * v_bound / (s.velocity_cfl * self.dx))
+        return int(min(max(1, n_elastic, n_velocity), s.max_substeps_per_frame))
+
+    def _speed_bound(self, frame_dt_s: float) -> float:
+        """Upper estimate (m/s) of particle speed during the next frame."""
+        v = self.velocities()[self._moving]
+        v_now = float(np.sqrt((v.astype(np.float64) ** 2).sum(1).max())) if len(v) else 0.0
+        accel = float(np.linalg.norm(self.scene.gravity)) + self._wind_peak
+        kicks = sum(float(np.linalg.norm(imp.velocity_change))
+                    for imp, done in zip(self.scene.impulses, self._impulse_done)
+                    if not done and imp.time_s < self.time_s + frame_dt_s)
+        return v_now + accel * frame_dt_s + kicks
+
+    def _cap_stiffness(self, frame_dt_s: float) -> None:
+        """Soften parts whose wave speed needs more substeps than allowed (they stay nearly rigid)."""
+        s = self.scene.solver
+        c_allowed = s.cfl * self.dx * s.max_substeps_per_frame / frame_dt_s
+        scale = np.minimum(1.0, (c_allowed / np.maximum(self._wave_speed, 1e-30)) ** 2) * 0.999
+        scale = np.where(self._wave_speed * np.sqrt(self._scale) > c_allowed, scale, self._scale)
+        self._set_stiffness(scale)
+        self.stiffness_scale = float(scale[self._moving].min()) if self._moving.any() else 1.0
+        softened = sorted({MATERIAL_NAMES[int(m)] for m in self.material_id[(scale < 1.0) & self._moving]})
+        stage(f"stiffness of {', '.join(softened)} capped at {self.stiffness_scale:.2g}×E to fit "
+              f"{s.max_substeps_per_frame} substeps per frame (raise solver.max_substeps_per_frame to avoid)")
+
+    def step_frame(self, frame_dt_s: float) -> None:
+        """Advance the simulation by frame_dt_s seconds in ceil(frame_dt_s / dt) substeps."""
+        if not (frame_dt_s > 0.0 and math.isfinite(frame_dt_s)):
+            raise InputError(f"frame duration must be a positive number of seconds, got {frame_dt_s}")
+        n_sub = self.substeps_for(frame_dt_s)
+        dt = frame_dt_s / n_sub
+        t0 = self.time_s
+        self.grid_mass.zero_()
+        self.grid_momentum.zero_()
+        self.grid_fixed.zero_()
+        for s in range(n_sub):
+            t = t0 + s * dt
+            self._apply_impulses(t + dt)
+            self._substep(dt, t)
+        self.time_s = t0 + frame_dt_s
+        self.frame += 1
+        self.substeps_last_frame = n_sub
+        self.particle_substeps += n_sub * self.n
+        self._guard(dt)
+
+    def _apply_impulses(self, t_end: float) -> None:
+        for i, imp in enumerate(self.scene.impulses):
+            if self._impulse_done[i] or imp.time_s >= t_end:
+                continue
+            lo, hi = ((-FAR,) * 3, (FAR,) * 3) if imp.region is None else (imp.region.min, imp.region.max)
+            wp.launch(kernels.add_velocity_in_region, dim=self.n, device=self.device,
+                      inputs=[self.x, self.v, self.fixed_flag, wp.vec3(*lo), wp.vec3(*hi),
+                              wp.vec3(*imp.velocity_change)])
+            self._impulse_done[i] = True
+
+    def _active_box(self) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+        """Grid nodes the particles touch this substep (CPU: tight box; GPU: the whole grid)."""
+        if self.device != "cpu":
+            return (0, 0, 0), self.dims
+        g = (self.x.numpy() - self.origin) / self.dx
+        lo = np.maximum(np.floor(g.min(0) - 0.5).astype(int), 0)
+        hi = np.minimum(np.floor(g.max(0) - 0.5).astype(int) + 3, self.dims)
+        return tuple(int(a) for a in lo), tuple(int(b - a) for a, b in zip(lo, hi))  # type: ignore[return-value]
+
+    def _substep(self, dt: float, t: float) -> None:
+        sc = self.scene
+        d = self.device
+        wp.launch(kernels.p2g, dim=self.n, device=d,
+                  inputs=[self.x, self.v, self.C, self.F, self.volume, self.mass, self.mu, self.lam,
+                          self.material, self.Jp, self.fixed_flag, self.grid_info, self.material_params, dt,
+                          self.grid_mass, self.grid_momentum, self.grid_fixed])
+        box_lo, box_shape = self._active_box()
+        wp.launch(kernels.grid_update, dim=box_shape, device=d,
+                  inputs=[self.grid_mass, self.grid_momentum, self.grid_fixed, self.grid_velocity,
+                          self.grid_info, wp.vec3i(*box_lo), dt, t, wp.vec3(*sc.gravity),
+                          self.wind_acc, self.wind_lo, self.wind_hi, self.wind_timing, len(sc.wind),
+                          sc.damping, sc.air_drag, int(sc.ground.enabled), sc.ground.height_m,
+                          sc.ground.friction, int(sc.walls == "sticky"), BOUNDARY_CELLS])
+        wp.launch(kernels.g2p, dim=self.n, device=d,
+                  inputs=[self.x, self.v, self.C, self.F, self.mu, self.lam, self.yield_stress, self.material,
+                          self.Jp, self.fixed_flag, self.grid_info, self.material_params, dt,
+                          self.grid_velocity])
+
+    # ------------------------------------------------------------------ guard and results
+    def _guard(self, dt: float) -> None:
+        """Raise ComputationError if any particle's state is non-finite or has run away."""
+        v = self.velocities().astype(np.float64)
+        x = self.positions()
+        F = self.deformation_gradients().astype(np.float64)
+        speed = np.sqrt((v ** 2).sum(1))
+        with np.errstate(all="ignore"):
+            J = np.linalg.det(F) if np.isfinite(F).all() else np.where(np.isfinite(F).all((1, 2)), 1.0, np.nan)
+            norm = np.sqrt((F ** 2).sum((1, 2)))
+            v_limit = self.dx / dt  # one cell per substep: beyond this the explicit scheme has failed
+            bad = (~np.isfinite(x).all(1) | ~np.isfinite(speed) | (speed > v_limit) | ~np.isfinite(norm)
+                   | (norm > MAX_STRETCH) | ~(J > 1.0 / MAX_STRETCH))
+        if not bad.any():
+            return
+        ids, counts = np.unique(self.material_id[bad], return_counts=True)
+        worst = int(ids[np.argmax(counts)])
+        names = ", ".join(f"'{MATERIAL_NAMES[int(m)]}' ({int(c)})" for m, c in zip(ids, counts))
+        raise ComputationError(
+            f"simulation diverged at frame {self.frame} (t={self.time_s:.4g} s): material "
+            f"'{MATERIAL_NAMES[worst]}' particles ({int(bad.sum())} of {self.n}: {names}) reached non-finite "
+            f"or runaway velocity/deformation (limit {v_limit:.3g} m/s, ‖F‖ ≤ {MAX_STRETCH:g}); "
+            "lower solver.cfl or check E/nu/density")
+
+    def positions(self) -> np.ndarray:
+        """Particle positions (N,3) float32, world m."""
+        return self.x.numpy().copy()
+
+    def velocities(self) -> np.ndarray:
+        """Particle velocities (N,3) float32, m/s."""
+        return self.v.numpy().copy()
+
+    def deformation_gradients(self) -> np.ndarray:
+        """Deformation gradients F (N,3,3) float32 (elastic part for plastic materials)."""
+        return self.F.numpy().copy()
+
+    def plastic_volume_ratio(self) -> np.ndarray:
+        """Jp (N,) — plastic volume change of snow particles (1 elsewhere)."""
+        return self.Jp.numpy().copy()
