@@ -32,7 +32,9 @@ def textured_sphere():
 
     sphere = trimesh.creation.icosphere(subdivisions=5)
     v = sphere.vertices
-    uv = np.stack([0.5 + np.arctan2(v[:, 1], v[:, 0]) / (2 * np.pi), 0.5 + np.arcsin(np.clip(v[:, 2], -1, 1)) / np.pi], 1)
+    longitude = 0.5 + np.arctan2(v[:, 1], v[:, 0]) / (2 * np.pi)
+    latitude = 0.5 + np.arcsin(np.clip(v[:, 2], -1, 1)) / np.pi
+    uv = np.stack([longitude, latitude], axis=1)
     yy, xx = np.mgrid[:512, :512]
     checker = ((xx // 64 + yy // 64) % 2).astype(np.float64)
     texture = np.stack([xx / 511, checker, yy / 511], axis=2)
@@ -55,11 +57,13 @@ def main() -> None:
     import matplotlib.pyplot as plt
 
     from pixie_gs.convert import mesh_to_splat
+    from pixie_gs.progress import set_quiet
     from pixie_gs.render import contact_sheet, render_points, save_png
 
+    set_quiet(True)
     sphere = textured_sphere()
-    t_ours = best_of(lambda: mesh_to_splat(sphere, args.count, np.random.default_rng(0)))
-    t_base = best_of(lambda: trimesh.sample.sample_surface(sphere, args.count, seed=0))
+    t_ours = best_of(lambda: mesh_to_splat(sphere, args.count, np.random.default_rng(0)), repeats=15)
+    t_base = best_of(lambda: trimesh.sample.sample_surface(sphere, args.count, seed=0), repeats=15)
     print(f"convert  {args.count} Gaussians from {len(sphere.faces)} textured triangles: "
           f"{t_ours * 1e3:.1f} ms  (trimesh.sample_surface positions only: {t_base * 1e3:.1f} ms, "
           f"ratio {t_ours / t_base:.2f}x)")
@@ -69,7 +73,7 @@ def main() -> None:
     cloud = mesh_to_splat(sphere, args.points, np.random.default_rng(1))
     means, rgb = cloud.means, cloud.rgb()
     render_points(means[:10], rgb[:10])  # warm-up
-    t_render = best_of(lambda: render_points(means, rgb, size=(256, 256)))
+    t_render = best_of(lambda: render_points(means, rgb, size=(256, 256)), repeats=10)
 
     def matplotlib_scatter():
         fig = plt.figure(figsize=(2.56, 2.56), dpi=100)

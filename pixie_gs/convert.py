@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .progress import progress
 from .splat import SplatCloud, rgb_to_sh_dc, rotmat_to_quat
 
 MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl", ".off")
@@ -103,11 +104,12 @@ def _face_areas(mesh) -> np.ndarray:
     return 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
 
 
-def sample_surface(mesh, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def sample_surface(mesh, n: int, rng: np.random.Generator, areas: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Area-weighted uniform samples: (face index (n,), barycentric weights (n,3), points (n,3) f64)."""
     faces = np.asarray(mesh.faces)
     tri = np.asarray(mesh.vertices, np.float64)[faces]
-    cumulative = np.cumsum(_face_areas(mesh))
+    cumulative = np.cumsum(_face_areas(mesh) if areas is None else areas)
     face = np.searchsorted(cumulative, rng.random(n) * cumulative[-1], side="right")
     face = np.minimum(face, len(faces) - 1)
     r1 = np.sqrt(rng.random(n))
@@ -150,13 +152,14 @@ def _own_surface_colors(mesh, face: np.ndarray, bary: np.ndarray) -> np.ndarray:
     visual = mesh.visual
     kind = getattr(visual, "kind", None)
     n = len(face)
-    if kind == "texture":
+    if kind == "texture" or hasattr(visual, "material"):  # TextureVisuals, with or without UVs
         material = getattr(visual, "material", None)
         image, factor = _material_image_and_factor(material)
         uv = getattr(visual, "uv", None)
         if image is not None and uv is not None and len(uv) == len(mesh.vertices):
             uv_at = np.einsum("nk,nkd->nd", bary, np.asarray(uv, np.float64)[np.asarray(mesh.faces)[face]])
-            return np.clip(bilinear_texture_lookup(image, uv_at) * factor, 0.0, 1.0).astype(np.float32)
+            texel_rgb = bilinear_texture_lookup(image, uv_at) / 255.0
+            return np.clip(texel_rgb * factor, 0.0, 1.0).astype(np.float32)
         return np.tile(np.clip(factor, 0.0, 1.0), (n, 1)).astype(np.float32)
     if kind == "vertex":
         colors = np.asarray(visual.vertex_colors, np.float64)[:, :3] / 255.0
@@ -168,7 +171,7 @@ def _own_surface_colors(mesh, face: np.ndarray, bary: np.ndarray) -> np.ndarray:
 
 
 def _material_image_and_factor(material) -> tuple[np.ndarray | None, np.ndarray]:
-    """(texture as float RGB (H,W,3) in [0,1] or None, colour factor (3,)) of a trimesh material.
+    """(texture as uint8 RGB (H,W,3) or None, colour factor (3,) in [0,1]) of a trimesh material.
 
     glTF (PBR) materials: baseColorTexture × baseColorFactor. Simple (OBJ) materials: the diffuse
     image alone when there is one (as viewers show it), else the diffuse colour.
@@ -187,11 +190,12 @@ def _material_image_and_factor(material) -> tuple[np.ndarray | None, np.ndarray]
             factor = np.asarray(material.diffuse, np.float64)[:3] / 255.0
     if image is None:
         return None, factor
-    return np.asarray(image.convert("RGB"), np.float64) / 255.0, factor
+    return np.asarray(image.convert("RGB"), np.uint8), factor  # uint8 keeps 4k textures small
 
 
 def bilinear_texture_lookup(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinearly interpolated colours (n,C) of `image` (H,W,C) at `uv` (n,2), repeat wrapping.
+    """Bilinearly interpolated colours (n,C) float64 of `image` (H,W,C), in the image's own value
+    scale, at `uv` (n,2), with repeat wrapping (glTF's default sampler).
 
     UV follows trimesh's convention (origin at the image's bottom-left, v up); texel (i, j) has
     its centre at u = (j + 0.5)/W, v = 1 − (i + 0.5)/H.
@@ -205,62 +209,81 @@ def bilinear_texture_lookup(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     y0 = y0.astype(np.int64)
     x1, y1 = (x0 + 1) % w, (y0 + 1) % h
     x0, y0 = x0 % w, y0 % h
-    top = image[y0, x0] * (1 - fx) + image[y0, x1] * fx
-    bottom = image[y1, x0] * (1 - fx) + image[y1, x1] * fx
+    def texel(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        return image[rows, cols].astype(np.float64)
+
+    top = texel(y0, x0) * (1 - fx) + texel(y0, x1) * fx
+    bottom = texel(y1, x0) * (1 - fx) + texel(y1, x1) * fx
     return top * (1 - fy) + bottom * fy
 
 
 # ---------------------------------------------------------------------------------------- interior
-def points_inside(mesh, points: np.ndarray, cells_per_side: int | None = None) -> np.ndarray:
-    """Boolean (n,): which points lie inside the closed mesh (parity of +z ray crossings).
+class InsideTest:
+    """Which points lie inside a closed mesh: parity of the crossings of an upward (+z) ray.
 
-    Vectorised: triangles are bucketed into an xy grid by their projected bounding boxes, so
-    each point is tested only against the triangles over its own grid cell.
+    Vectorised: triangles are bucketed once into an xy grid by their projected bounding boxes,
+    so each point is tested only against the triangles over its own grid cell.
     """
-    points = np.asarray(points, np.float64)
-    tri = np.asarray(mesh.vertices, np.float64)[np.asarray(mesh.faces)]
-    a, b, c = tri[:, 0, :2], tri[:, 1, :2], tri[:, 2, :2]
-    area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-    keep = np.abs(area2) > 1e-18  # triangles seen edge-on from +z never cross a vertical ray
-    tri, area2 = tri[keep], area2[keep]
-    if len(tri) == 0 or len(points) == 0:
-        return np.zeros(len(points), bool)
-    g = cells_per_side or int(np.clip(np.sqrt(len(tri)) / 2, 1, 256))
-    lo = tri[:, :, :2].reshape(-1, 2).min(axis=0)
-    span = np.maximum(tri[:, :, :2].reshape(-1, 2).max(axis=0) - lo, 1e-12)
 
-    def cell_of(xy: np.ndarray) -> np.ndarray:
-        return np.clip(np.floor((xy - lo) / span * g).astype(np.int64), 0, g - 1)
+    MAX_BUCKET_ENTRIES = 8_000_000  # (triangle, cell) pairs; the grid coarsens to stay below
 
-    tmin, tmax = cell_of(tri[:, :, :2].min(axis=1)), cell_of(tri[:, :, :2].max(axis=1))
-    nx, ny = tmax[:, 0] - tmin[:, 0] + 1, tmax[:, 1] - tmin[:, 1] + 1
-    counts = nx * ny
-    tri_id = np.repeat(np.arange(len(tri)), counts)
-    local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    cx = tmin[tri_id, 0] + local % nx[tri_id]
-    cy = tmin[tri_id, 1] + local // nx[tri_id]
-    bucket = cx * g + cy
-    order = np.argsort(bucket, kind="stable")
-    bucket_tris = tri_id[order]
-    starts = np.searchsorted(bucket[order], np.arange(g * g), side="left")
-    ends = np.searchsorted(bucket[order], np.arange(g * g), side="right")
+    def __init__(self, mesh, cells_per_side: int | None = None) -> None:
+        tri = np.asarray(mesh.vertices, np.float64)[np.asarray(mesh.faces)]
+        a, b, c = tri[:, 0, :2], tri[:, 1, :2], tri[:, 2, :2]
+        area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+        keep = np.abs(area2) > 1e-18  # triangles seen edge-on from +z never cross a vertical ray
+        self.tri, self.area2 = tri[keep], area2[keep]
+        if len(self.tri) == 0:
+            return
+        xy = self.tri[:, :, :2]
+        self.lo = xy.reshape(-1, 2).min(axis=0)
+        self.span = np.maximum(xy.reshape(-1, 2).max(axis=0) - self.lo, 1e-12)
+        g = cells_per_side or int(np.clip(2 * np.sqrt(len(self.tri)), 1, 1024))
+        while True:
+            self.g = g
+            tmin, tmax = self._cell(xy.min(axis=1)), self._cell(xy.max(axis=1))
+            nx, ny = tmax[:, 0] - tmin[:, 0] + 1, tmax[:, 1] - tmin[:, 1] + 1
+            counts = nx * ny
+            if counts.sum() <= max(self.MAX_BUCKET_ENTRIES, 4 * len(self.tri)) or g == 1:
+                break
+            g = max(1, g // 2)
+        tri_id = np.repeat(np.arange(len(self.tri)), counts)
+        local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        bucket = (tmin[tri_id, 0] + local % nx[tri_id]) * g + tmin[tri_id, 1] + local // nx[tri_id]
+        order = np.argsort(bucket, kind="stable")
+        self.bucket_tris = tri_id[order]
+        self.starts = np.searchsorted(bucket[order], np.arange(g * g), side="left")
+        self.ends = np.searchsorted(bucket[order], np.arange(g * g), side="right")
 
-    inside_xy = np.all((points[:, :2] >= lo) & (points[:, :2] <= lo + span), axis=1)
-    pc = cell_of(points[:, :2])
-    pbucket = pc[:, 0] * g + pc[:, 1]
-    per_point = np.where(inside_xy, ends[pbucket] - starts[pbucket], 0)
-    crossings = np.zeros(len(points), np.int64)
-    for first in range(0, len(points), 50_000):  # bounded memory for (point, triangle) pairs
-        ids = np.arange(first, min(first + 50_000, len(points)))
-        cnt = per_point[ids]
-        if cnt.sum() == 0:
-            continue
-        pid = np.repeat(ids, cnt)
-        offset = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-        tid = bucket_tris[starts[pbucket[pid]] + offset]
-        hits = pid[_ray_hits(points[pid], tri[tid], area2[tid])]
-        crossings += np.bincount(hits, minlength=len(points))
-    return crossings % 2 == 1
+    def _cell(self, xy: np.ndarray) -> np.ndarray:
+        return np.clip(np.floor((xy - self.lo) / self.span * self.g).astype(np.int64), 0, self.g - 1)
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        """Boolean (n,): True where a point (n,3) lies inside the mesh."""
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        if len(self.tri) == 0 or len(points) == 0:
+            return np.zeros(len(points), bool)
+        in_footprint = np.all((points[:, :2] >= self.lo) & (points[:, :2] <= self.lo + self.span), axis=1)
+        cell = self._cell(points[:, :2])
+        bucket = cell[:, 0] * self.g + cell[:, 1]
+        per_point = np.where(in_footprint, self.ends[bucket] - self.starts[bucket], 0)
+        crossings = np.zeros(len(points), np.int64)
+        for first in range(0, len(points), 50_000):  # bounded memory for (point, triangle) pairs
+            ids = np.arange(first, min(first + 50_000, len(points)))
+            cnt = per_point[ids]
+            if cnt.sum() == 0:
+                continue
+            pid = np.repeat(ids, cnt)
+            offset = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+            tid = self.bucket_tris[self.starts[bucket[pid]] + offset]
+            hits = pid[_ray_hits(points[pid], self.tri[tid], self.area2[tid])]
+            crossings += np.bincount(hits, minlength=len(points))
+        return crossings % 2 == 1
+
+
+def points_inside(mesh, points: np.ndarray) -> np.ndarray:
+    """Boolean (n,): which points (n,3) lie inside the closed mesh."""
+    return InsideTest(mesh)(points)
 
 
 def _ray_hits(p: np.ndarray, tri: np.ndarray, area2: np.ndarray) -> np.ndarray:
@@ -291,18 +314,21 @@ def is_closed(mesh) -> bool:
     return bool(geometric.is_watertight)
 
 
-def sample_interior(mesh, n: int, rng: np.random.Generator) -> np.ndarray:
+def sample_interior(mesh, n: int, rng: np.random.Generator, batch_size: int = 200_000) -> np.ndarray:
     """`n` uniform random points (n,3) inside a watertight mesh (rejection from its bounding box)."""
     lo, hi = np.asarray(mesh.bounds[0], np.float64), np.asarray(mesh.bounds[1], np.float64)
     fraction = float(np.clip(abs(mesh.volume) / np.prod(np.maximum(hi - lo, 1e-12)), 0.01, 1.0))
+    inside = InsideTest(mesh)
+    expected_batches = max(1, int(np.ceil(n / fraction * 1.1 / batch_size)))
     found: list[np.ndarray] = []
     total = 0
-    for _ in range(100):
-        batch = int(min(max((n - total) / fraction * 1.2, 256), 4_000_000))
+    for _ in progress(range(max(100, 3 * expected_batches)), desc="filling interior",
+                            total=expected_batches, unit="batch"):
+        batch = int(min(max((n - total) / fraction * 1.1, 256), batch_size))
         candidates = lo + rng.random((batch, 3)) * (hi - lo)
-        inside = candidates[points_inside(mesh, candidates)]
-        found.append(inside)
-        total += len(inside)
+        accepted = candidates[inside(candidates)]
+        found.append(accepted)
+        total += len(accepted)
         if total >= n:
             break
     points = np.concatenate(found)[:n]
@@ -310,6 +336,17 @@ def sample_interior(mesh, n: int, rng: np.random.Generator) -> np.ndarray:
         raise InputError(f"could only place {len(points)} of {n} interior Gaussians (is the mesh closed?)",
                          mesh.metadata.get("source"))
     return points
+
+
+def nearest_surface_sample(tree, inner: np.ndarray, spacing: float) -> np.ndarray:
+    """Index of the surface sample nearest each interior point: exact within 4 sample spacings of
+    the surface; deeper inside, a sample at most twice as far as the nearest (an exact search is
+    very slow there, e.g. at a sphere's centre every surface sample is almost equally near)."""
+    distance, index = tree.query(inner, distance_upper_bound=4.0 * spacing)
+    deep = ~np.isfinite(distance)
+    if deep.any():
+        index[deep] = tree.query(inner[deep], eps=1.0)[1]
+    return index
 
 
 # ---------------------------------------------------------------------------------------- splat
@@ -334,15 +371,19 @@ def mesh_to_splat(mesh, n_surface: int, rng: np.random.Generator, *, fill: bool 
     if not total_area > 0:
         raise InputError("mesh has zero surface area", source)
 
-    face, bary, points = sample_surface(mesh, n_surface, rng)
-    frames = surface_frames(mesh, face)
+    face, bary, points = sample_surface(mesh, n_surface, rng, areas)
+    # frames and quaternions per face (then indexed) when faces are fewer than samples
+    used, which = (np.unique(face, return_inverse=True) if n_surface > len(mesh.faces)
+                   else (face, np.arange(n_surface)))
+    face_frames = surface_frames(mesh, used)
+    frames = face_frames[which]
     colors = surface_colors(mesh, face, bary) if rgb is None else np.tile(
         np.asarray(rgb, np.float32).reshape(1, 3), (n_surface, 1))
     tangent_std = TANGENT_SCALE_RATIO * np.sqrt(total_area / n_surface)
     surface_scales = np.array([tangent_std, tangent_std, tangent_std * normal_scale_ratio])
     means = [points]
     log_scales = [np.tile(np.log(surface_scales), (n_surface, 1))]
-    quats = [rotmat_to_quat(frames)]
+    quats = [rotmat_to_quat(face_frames)[which]]
     normals = [frames[:, :, 2]]
     all_colors = [colors]
 
@@ -354,7 +395,7 @@ def mesh_to_splat(mesh, n_surface: int, rng: np.random.Generator, *, fill: bool 
             from scipy.spatial import cKDTree
 
             inner = sample_interior(mesh, count, rng)
-            _, nearest = cKDTree(points).query(inner)
+            nearest = nearest_surface_sample(cKDTree(points), inner, np.sqrt(total_area / n_surface))
             inner_std = FILL_SCALE_RATIO * (abs(float(mesh.volume)) / count) ** (1.0 / 3.0)
             means.append(inner)
             log_scales.append(np.full((count, 3), np.log(inner_std)))

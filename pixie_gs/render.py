@@ -14,6 +14,10 @@ import numpy as np
 from .atomic import atomic_path
 
 MAX_AUTO_RADIUS_FRACTION = 1 / 32  # automatic disc radius is at most this share of the image side
+# Automatic disc radius / median nearest-neighbour distance. Random surface samples have a median
+# neighbour distance ≈ 0.47 × their spacing sqrt(area / n); discs of radius ≈ 1 spacing leave
+# only ~5 % of a surface seen face-on uncovered (Poisson coverage 1 − exp(−π r² density)).
+AUTO_RADIUS_PER_NN_DISTANCE = 2.0
 FIT_MARGIN_FRACTION = 0.05  # blank border kept around the fitted bounds
 LABEL_HEIGHT_PX = 16
 
@@ -46,6 +50,18 @@ def view_basis(azimuth_deg: float, elevation_deg: float, up: str = "z") -> np.nd
     return np.stack([right, screen_up, to_camera])
 
 
+def typical_neighbour_distance(points: np.ndarray, sample: int = 2000, seed: int = 0) -> float:
+    """Median distance from a point to its nearest neighbour (from up to `sample` points), 0 if < 2."""
+    if len(points) < 2:
+        return 0.0
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(seed)
+    probe = points if len(points) <= sample else points[rng.choice(len(points), sample, replace=False)]
+    distance, _ = cKDTree(points).query(probe, k=2)
+    return float(np.median(distance[:, 1]))
+
+
 def _disc_offsets(radius: int) -> tuple[np.ndarray, np.ndarray]:
     d = np.arange(-radius, radius + 1)
     dx, dy = np.meshgrid(d, d, indexing="xy")
@@ -57,18 +73,19 @@ def render_points(means: np.ndarray, rgb: np.ndarray, *, size: tuple[int, int] =
                   radius_px: float | np.ndarray | None = None,
                   background: tuple[float, float, float] = (1.0, 1.0, 1.0),
                   bounds: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-    """Render points (N,3) with colours (N,3) in [0,1] to a uint8 image (H, W, 3).
+    """Render points (N,3) with colours (N,3) (or one (3,) for all) in [0,1] to uint8 (H, W, 3).
 
     size: (W, H) px. bounds: (min (3,), max (3,)) box fitted into the view (default: the
     points' own bounds); its centre lands at the image centre. radius_px: disc radius in px,
-    one value or one per point (default: from the point count, so discs roughly cover the
-    object's projected area).
+    one value or one per point (default: twice the points' median nearest-neighbour distance,
+    so that sampled surfaces look closed from every side).
     """
     width, height = int(size[0]), int(size[1])
     image = np.empty((height, width, 3), np.uint8)
     image[:] = np.round(np.clip(np.asarray(background, np.float64), 0, 1) * 255).astype(np.uint8)
     means = np.asarray(means, np.float64).reshape(-1, 3)
-    colors = np.round(np.clip(np.asarray(rgb, np.float64).reshape(-1, 3), 0, 1) * 255).astype(np.uint8)
+    rgb = np.broadcast_to(np.asarray(rgb, np.float64), means.shape)  # (3,) colours every point
+    colors = np.round(np.clip(rgb, 0, 1) * 255).astype(np.uint8)
     finite = np.isfinite(means).all(axis=1)
     if len(means) == 0 or not finite.any():
         return image
@@ -93,13 +110,11 @@ def render_points(means: np.ndarray, rgb: np.ndarray, *, size: tuple[int, int] =
 
     n = len(means)
     if radius_px is None:
-        covered = max(4.0 * half[0] * half[1] * px_per_unit ** 2, 1.0)
-        # about half of a closed surface's points face the camera; their discs should cover the
-        # area with little bare ground left between random points (1.5× the tiling radius)
-        auto = 1.5 * np.sqrt(covered / (np.pi * max(n / 2.0, 1.0)))
+        auto = AUTO_RADIUS_PER_NN_DISTANCE * typical_neighbour_distance(means[finite]) * px_per_unit
         radii = np.full(n, np.clip(auto, 1.5, max(1.5, min(width, height) * MAX_AUTO_RADIUS_FRACTION)))
     else:
         radii = np.broadcast_to(np.asarray(radius_px, np.float64), (n,)).copy()
+    radii = np.minimum(radii, max(width, height) / 2.0)  # bounds the work per disc
     keep = finite & (radii >= 0)
     keep &= (col > -radii - 1) & (col < width + radii + 1) & (row > -radii - 1) & (row < height + radii + 1)
     index = np.flatnonzero(keep)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import os
+import sys
 import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterable, Sequence
@@ -88,9 +89,15 @@ def open_recording(app_id: str, rrd_path: str | Path | None = None, spawn: bool 
         _PENDING[id(rec)] = (Path(tmp_name), final)
         sinks.append(rr.FileSink(tmp_name))
     if spawn:
+        if sys.platform.startswith("linux") and not any(
+                os.environ.get(k) for k in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")):
+            discard_recording(rec)
+            raise InputError("--spawn needs a display for the rerun viewer (none here); record with "
+                             "--rrd FILE and open it with `rerun FILE` instead")
         try:
-            rr.spawn(connect=False, hide_welcome_screen=True)
+            rr.spawn(connect=False, hide_welcome_screen=True, recording=rec)
         except Exception as exc:  # no viewer binary, no display, ...
+            discard_recording(rec)
             raise InputError(f"--spawn: could not start the rerun viewer ({exc})") from None
         sinks.append(rr.GrpcSink())
     rec.set_sinks(*sinks)
@@ -101,7 +108,12 @@ def close_recording(rec: "rr.RecordingStream") -> Path | None:
     """Flush `rec`; if it saves to a file, move the finished file onto its target and return it."""
     if not rec.is_enabled():
         return None
-    rec.flush()
+    try:
+        rec.flush(timeout_sec=10.0)
+    except RuntimeError as exc:  # a live viewer that went away must not fail a finished run
+        from .progress import stage
+
+        stage(f"rerun: live stream not delivered ({str(exc).splitlines()[0]})")
     rec.disconnect()
     pending = _PENDING.pop(id(rec), None)
     if pending is None:
@@ -177,6 +189,9 @@ def log_splat(
     With a SplatCloud, colours default to its base RGB and radii to its std-devs. With a bare
     (N,3) array only what is given is logged: later calls with positions alone move the points
     and keep the colours/radii logged earlier (rerun's latest-at), which keeps long runs small.
+    Beware: static data (time_s=None) shadows every temporal value of the same component in
+    rerun, so to style points that move later, use `log_style` (colours/radii only) or log the
+    first positions at the first time instead of statically.
     """
     import rerun as rr
 
@@ -194,6 +209,19 @@ def log_splat(
         radii = np.full(len(means), float(radii), np.float32)
     static = _set_time(rec, time_s)
     rec.log(entity, rr.Points3D.from_fields(positions=means, colors=rgb, radii=radii), static=static)
+
+
+def log_style(rec: "rr.RecordingStream", entity: str, rgb: np.ndarray | None = None,
+              radii: np.ndarray | float | None = None) -> None:
+    """Static colours (N,3)/(3,) and radii of `entity` only, so positions logged over time move
+    the points while keeping this look (a single colour/radius applies to every point)."""
+    import rerun as rr
+
+    if not rec.is_enabled():
+        return
+    rgb = None if rgb is None else np.atleast_2d(np.asarray(rgb))
+    radii = None if radii is None else np.atleast_1d(np.asarray(radii, np.float32))
+    rec.log(entity, rr.Points3D.from_fields(colors=rgb, radii=radii), static=True)
 
 
 def log_positions(rec: "rr.RecordingStream", entities: Iterable[str], means: np.ndarray,

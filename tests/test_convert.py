@@ -103,6 +103,19 @@ def test_scene_parts_keep_their_own_textures(tmp_path):
         np.testing.assert_allclose(cloud.rgb()[sel][interior], expected[interior], atol=1.0 / 255)
 
 
+@pytest.mark.parametrize("suffix", [".obj", ".gltf"])
+def test_textured_obj_and_gltf_with_side_files(tmp_path, suffix):
+    """OBJ (+ .mtl + .png, simple material) and text glTF (+ .bin buffers) give the same texels."""
+    quad = textured_quad()
+    if suffix == ".obj":
+        quad.visual.material = trimesh.visual.material.SimpleMaterial(image=block_texture())
+    trimesh.Scene([quad]).export(str(tmp_path / f"quad{suffix}"))
+    cloud = mesh_to_splat(load_mesh(tmp_path / f"quad{suffix}"), 2000, np.random.default_rng(0))
+    assert np.abs(cloud.means[:, 2]).max() < 1e-6
+    expected, interior = expected_block_colors(cloud.means[:, :2].astype(np.float64))
+    np.testing.assert_allclose(cloud.rgb()[interior], expected[interior], atol=1.0 / 255)
+
+
 def test_bilinear_lookup_and_base_colour_factor(tmp_path):
     image = np.asarray(block_texture(), np.float64) / 255.0
     # texel centre of the top-left texel is (u, v) = (0.5/8, 1 − 0.5/8); halfway between two texels blends
@@ -169,9 +182,14 @@ def test_fill_puts_gaussians_inside_a_watertight_box(tmp_path, capsys):
     box = trimesh.creation.box(extents=(1.0, 2.0, 0.5))
     path, out = tmp_path / "box.stl", tmp_path / "box.ply"
     box.export(str(path))
+    preview = tmp_path / "box.png"
     code, _ = run_cli(["convert", str(path), str(out), "--count", "2000", "--fill", "--fill-count", "1500",
-                       "-q"], capsys)
+                       "--preview", str(preview), "-q"], capsys)
     assert code == 0
+    picture = np.asarray(Image.open(preview).convert("RGB"))
+    assert picture.shape == (256 + 16, 4 * 256, 3)
+    grey = np.all(picture == round(0.7 * 255), axis=2)  # the uncoloured mesh's default grey
+    assert 0.05 < grey[16:, :256].mean() < 0.9
     cloud = read_splat(out)
     assert len(cloud) == 3500
     inner = cloud.means[2000:]
@@ -182,6 +200,16 @@ def test_fill_puts_gaussians_inside_a_watertight_box(tmp_path, capsys):
     assert np.all(np.abs(np.bincount(octant, minlength=8) / 1500 - 0.125) < 0.04)
     np.testing.assert_allclose(cloud.scales[2000:, 0], cloud.scales[2000:, 2])  # isotropic
     assert np.all(cloud.extras["nx"][2000:] == 0)
+
+    # interior Gaussians take the colour of the nearest surface sample: green just under a green top
+    coloured = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    coloured.visual.face_colors = np.where(coloured.face_normals[:, 2:3] > 0.5, [0, 255, 0, 255], [255, 0, 0, 255])
+    cloud = mesh_to_splat(coloured, 4000, np.random.default_rng(6), fill=True, n_fill=4000)
+    inner, inner_rgb = cloud.means[4000:], cloud.rgb()[4000:]
+    under_top = (inner[:, 2] > 0.45) & np.all(np.abs(inner[:, :2]) < 0.3, axis=1)
+    near_side = (np.abs(inner[:, 0]) > 0.45) & (np.abs(inner[:, 2]) < 0.3)
+    assert under_top.sum() > 10 and near_side.sum() > 10
+    assert np.all(inner_rgb[under_top] == [0, 1, 0]) and np.all(inner_rgb[near_side] == [1, 0, 0])
 
     open_quad = textured_quad()
     with pytest.raises(InputError, match="watertight"):

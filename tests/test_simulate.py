@@ -67,7 +67,7 @@ def test_cli_frames_tracks_and_recording(tmp_path, capsys):
     assert rc == 0
     assert ply.read_bytes() == before  # input untouched
     names = sorted(p.name for p in out.iterdir())
-    assert names == [f"frame_{i:05d}.ply" for i in range(4)] + ["tracks.npz"]
+    assert names == [f"frame_{i:05d}.ply" for i in range(4)] + ["preview.png", "tracks.npz"]
 
     tracks = np.load(out / "tracks.npz")
     assert tracks["t"].shape == (4,) and tracks["x"].shape == (4, len(cloud), 3)
@@ -103,7 +103,8 @@ def test_cli_refuses_old_frames_without_force(tmp_path, capsys):
     assert main(args[:-1] + ["--frames", "2", "-q"]) == 1
     assert "--force" in capsys.readouterr().err
     assert main(args[:-1] + ["--frames", "2", "--force", "-q"]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["frame_00000.ply", "frame_00001.ply", "tracks.npz"]
+    assert sorted(p.name for p in out.iterdir()) == ["frame_00000.ply", "frame_00001.ply", "preview.png",
+                                                     "tracks.npz"]
 
 
 def test_cli_missing_materials_one_line_error(tmp_path, capsys):
@@ -115,6 +116,18 @@ def test_cli_missing_materials_one_line_error(tmp_path, capsys):
     assert rc == 1
     assert len(err.splitlines()) == 1 and str(ply) in err and "pixie annotate" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.ply", "scene.json"]  # nothing written
+
+
+def test_cli_diverging_run_leaves_nothing_behind(tmp_path, capsys):
+    """A kick far beyond what one substep per frame can carry: exit 3, no frames, no recording."""
+    scene = scene_dict(impulses=[{"time_s": 0.0, "velocity_change": [300.0, 0.0, 0.0]}],
+                       solver={"max_substeps_per_frame": 1})
+    ply, sc = write_inputs(tmp_path, annotated_cloud(60), scene)
+    rc = main(["simulate", str(ply), "--out", str(tmp_path / "o"), "--scene", str(sc), "--frames", "4",
+               "--device", "cpu", "--rrd", str(tmp_path / "r.rrd"), "-q"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 3 and "diverged" in err and len(err.splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.ply", "scene.json"]
 
 
 # ---------------------------------------------------------------------------------- placement

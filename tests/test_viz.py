@@ -75,3 +75,32 @@ def test_null_recording_is_silent_no_op(tmp_path):
     viz.send_layout(rec)
     assert viz.close_recording(rec) is None
     assert list(tmp_path.iterdir()) == []
+
+
+def test_log_style_is_static_colour_only(tmp_path):
+    """Styling moving points must not log static positions (they would shadow the temporal ones)."""
+    means = np.zeros((5, 3), np.float32)
+    with viz.recording("pixie-test", rrd_path=tmp_path / "s.rrd") as rec:
+        viz.log_style(rec, "pts", rgb=(255, 0, 0), radii=0.01)
+        for k in range(3):
+            viz.log_splat(rec, "pts", means + k, time_s=0.5 * k)
+    rows = viz.read_recording_positions(tmp_path / "s.rrd", "pts")
+    assert [t for t, _ in rows] == [0.0, 0.5, 1.0]  # no static positions row
+    from rerun.chunk import RrdReader
+    static = [c for c in RrdReader(str(tmp_path / "s.rrd")).stream().to_chunks()
+              if c.entity_path == "/pts" and c.is_static]
+    assert static and "Points3D:colors" in static[0].to_record_batch().schema.names
+
+
+def test_spawn_without_display_is_a_clear_error(tmp_path, monkeypatch):
+    import sys
+
+    from pixie_gs.errors import InputError
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("display detection is only done on Linux")
+    for key in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
+        monkeypatch.delenv(key, raising=False)
+    with pytest.raises(InputError, match="display"):
+        viz.open_recording("pixie-test", rrd_path=tmp_path / "x.rrd", spawn=True)
+    assert list(tmp_path.iterdir()) == []  # the pending .rrd was removed

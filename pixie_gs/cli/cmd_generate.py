@@ -24,7 +24,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--gaussians", type=int, default=50_000,
                    help="Gaussians per object, varied ±20%% per object (default 50000)")
     p.add_argument("--preview", metavar="PNG", default=None,
-                   help="also write a contact sheet: one object per class, by RGB and by material")
+                   help="also write a contact sheet: up to two objects per class, by RGB and by material")
     p.add_argument("--table", metavar="JSON", default=None,
                    help="class table to use instead of the packaged pixie_gs/data/classes.json")
     p.add_argument("--force", action="store_true", help="replace an existing split")

@@ -16,7 +16,8 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
         description="Simulate an annotated 3DGS splat (material_id, E, nu, density per Gaussian, as written "
         "by `pixie annotate`) with an MLS-MPM in NVIDIA Warp. Writes DIR/frame_00000.ply ... (valid 3DGS files "
         "keeping every input property; positions moved and covariances advanced as F Σ Fᵀ, in the input's "
-        "coordinates) and DIR/tracks.npz (t (T,) s, x (T,N,3)). Frame 0 is the initial state.",
+        "coordinates), DIR/tracks.npz (t (T,) s, x (T,N,3)) and DIR/preview.png (a strip of frames). "
+        "Frame 0 is the initial state.",
         epilog="example: pixie simulate annotated.ply --out frames/ --preset drop --frames 48 --fps 24 --rrd sim.rrd",
     )
     p.add_argument("input", metavar="IN.ply", help="annotated 3D Gaussian splat")
@@ -49,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from ..atomic import check_distinct_output
     from ..progress import stage
     from ..sim.frames import FrameWriter
-    from ..sim.run import FrameState, _material_arrays, placement_transform, simulate
+    from ..sim.run import FrameState, material_arrays, placement_transform, simulate
     from ..splat import read_splat
 
     if args.frames < 1:
@@ -57,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.fps > 0:
         raise InputError(f"--fps must be > 0, got {args.fps:g}")
     cloud = read_splat(args.input)
-    _material_arrays(cloud)  # one-line error before anything is created
+    material_arrays(cloud)  # one-line error before anything is created
     scene = load_scene(args)
     if args.rrd:
         check_distinct_output(args.input, args.rrd, force=False)
@@ -81,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         traj = simulate(cloud, scene, args.frames, args.fps, device=args.device, on_frame=on_frame,
                         fill=args.fill)
+        preview = writer.write_preview(traj.t, traj.x, scene.up)
         tracks = writer.finish(traj.t, traj.x)
         viz.send_layout(rec, fps=args.fps, shared=["world"])
         saved = viz.close_recording(rec)
@@ -88,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
         writer.abort()
         viz.discard_recording(rec)
         raise
-    stage(f"wrote {args.frames} frames and {tracks.name} to {args.out}"
+    stage(f"wrote {args.frames} frames, {tracks.name} and {preview.name} to {args.out}"
           + (f" (+{traj.filled} interior particles simulated)" if traj.filled else "")
           + (f"; rerun recording {saved}" if saved else ""))
     return 0

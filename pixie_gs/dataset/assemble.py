@@ -22,6 +22,7 @@ MIN_GAUSSIANS_PER_PIECE = 16
 SCALE_RANGE = (0.8, 1.25)  # object size multiplier
 COUNT_RANGE = (0.8, 1.2)  # Gaussian count multiplier around the requested budget
 GAUSSIAN_SIZE_RANGE = (0.8, 1.3)  # multiplier of the converter's Gaussian std-devs
+OPACITY_RANGE = (0.7, 0.97)  # per-object Gaussian opacity α (real captures vary)
 
 
 def allocate_counts(pieces: list[Piece], total: int) -> list[tuple[int, int]]:
@@ -69,6 +70,7 @@ def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int) -> tuple[S
     yaw = float(rng.uniform(0.0, 2.0 * math.pi))
     total = int(round(n_gaussians * rng.uniform(*COUNT_RANGE)))
     size_factor = float(rng.uniform(*GAUSSIAN_SIZE_RANGE))
+    opacity = float(rng.uniform(*OPACITY_RANGE))
     transform = np.eye(4)
     transform[:3, :3] = scale * rotation_z(yaw)
     for piece in pieces:
@@ -77,7 +79,8 @@ def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int) -> tuple[S
     clouds, part_ids = [], []
     for piece, (n_surface, n_fill) in zip(pieces, allocate_counts(pieces, total)):
         cloud = mesh_to_splat(piece.mesh, n_surface, rng, fill=piece.fill and n_fill > 0, n_fill=n_fill,
-                              rgb=np.asarray(piece.rgb, np.float32), color_noise=piece.color_noise)
+                              rgb=np.asarray(piece.rgb, np.float32), color_noise=piece.color_noise,
+                              opacity=opacity)
         clouds.append(cloud)
         part_ids.append(np.full(len(cloud), spec.part(piece.part).part_id, np.int32))
     cloud = SplatCloud.concatenate(clouds)
@@ -103,6 +106,7 @@ def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int) -> tuple[S
         "scale": round(scale, 6),
         "yaw_rad": round(yaw, 6),
         "gaussian_size_factor": round(size_factor, 6),
+        "opacity": round(opacity, 6),
         "bounds_min_m": [round(float(v), 5) for v in lo],
         "bounds_max_m": [round(float(v), 5) for v in hi],
         "rejection_draws": draws,

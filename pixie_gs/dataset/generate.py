@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..progress import progress
+from ..progress import is_quiet, progress, set_quiet
 from .assemble import build_object
 from .labels import ClassSpec, load_class_table
 
@@ -69,7 +69,12 @@ def _table(path: str | None) -> dict[str, ClassSpec]:
 def write_object(task: ObjectTask) -> dict:
     """Build object `task.index` and write its .ply and .json; returns its index entry."""
     spec = _table(task.table_path)[task.class_name]
-    cloud, record = build_object(spec, task.seed, task.n_gaussians)
+    was_quiet = is_quiet()
+    set_quiet(True)  # per-piece bars (e.g. the converter's interior fill) would bury the object bar
+    try:
+        cloud, record = build_object(spec, task.seed, task.n_gaussians)
+    finally:
+        set_quiet(was_quiet)
     stem = object_stem(task.index, task.class_name)
     directory = Path(task.directory)
     record = {"index": task.index, "file": f"{stem}.ply", **record}
@@ -146,4 +151,7 @@ def _run_tasks(tasks: list[ObjectTask], workers: int) -> list[dict]:
         return [write_object(t) for t in progress(tasks, desc, total=len(tasks), unit="obj")]
     ctx = multiprocessing.get_context("spawn")
     with ctx.Pool(processes=min(workers, len(tasks))) as pool:
-        return list(progress(pool.imap(write_object, tasks, chunksize=1), desc, total=len(tasks), unit="obj"))
+        entries = list(progress(pool.imap(write_object, tasks, chunksize=1), desc, total=len(tasks), unit="obj"))
+        pool.close()
+        pool.join()
+    return entries

@@ -31,7 +31,7 @@ def pick_examples(paths: list[Path], per_class: int) -> list[Path]:
     return [p for bucket in chosen.values() for p in bucket]
 
 
-def write_preview(data_dir: str | Path, split: str, png: str | Path, per_class: int = 1,
+def write_preview(data_dir: str | Path, split: str, png: str | Path, per_class: int = 2,
                   cell_px: int = 200) -> int:
     """Render up to `per_class` objects per class (RGB view and material view side by side) into
     one PNG; returns the number of objects shown."""

@@ -43,8 +43,9 @@ def recipe(name: str) -> Callable[[Recipe], Recipe]:
 
 # ---------------------------------------------------------------------------------- colours
 def jitter(rng: np.random.Generator, rgb, amount: float = 0.06) -> tuple[float, float, float]:
-    """Base colour varied per object (independent per channel, plus a brightness factor)."""
-    c = np.asarray(rgb, float) * rng.uniform(1 - amount, 1 + amount) + rng.normal(0.0, amount / 2, 3)
+    """Base colour varied per object: a brightness factor plus a small per-channel tint (the tint
+    is a quarter of `amount`, so a colour keeps its hue: bark stays brown, leaves green)."""
+    c = np.asarray(rgb, float) * rng.uniform(1 - amount, 1 + amount) + rng.normal(0.0, amount / 4, 3)
     return tuple(float(v) for v in np.clip(c, 0.0, 1.0))
 
 
@@ -67,7 +68,7 @@ TOY_COLOURS = [(0.98, 0.85, 0.10), (0.95, 0.30, 0.30), (0.25, 0.50, 0.90), (0.30
 CAN_PAINT = [(0.80, 0.05, 0.08), (0.10, 0.20, 0.60), (0.10, 0.50, 0.20), (0.95, 0.75, 0.10), (0.10, 0.10, 0.10),
              (0.85, 0.85, 0.88), (0.55, 0.10, 0.45), (0.95, 0.45, 0.05)]
 ALUMINIUM = (0.78, 0.79, 0.82)
-CRATE_METAL = [(0.55, 0.57, 0.60), (0.70, 0.72, 0.74), (0.55, 0.30, 0.18), (0.25, 0.35, 0.22),
+CRATE_METAL = [(0.55, 0.57, 0.60), (0.70, 0.72, 0.74), (0.42, 0.44, 0.47), (0.25, 0.35, 0.22),
                (0.20, 0.30, 0.55), (0.65, 0.15, 0.12)]
 SAND = [(0.82, 0.70, 0.48), (0.76, 0.62, 0.40), (0.88, 0.78, 0.58), (0.72, 0.50, 0.32)]
 SNOW = [(0.93, 0.94, 0.97), (0.85, 0.87, 0.90), (0.80, 0.82, 0.86)]
@@ -159,7 +160,7 @@ def potted_tree(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict
     bark = jitter(rng, pick(rng, BARK))
     leaf = jitter(rng, pick(rng, AUTUMN if (kind == "broadleaf" and rng.random() < 0.12) else LEAF_GREENS))
     trunk_r = height * rng.uniform(0.018, 0.035)
-    top = base_z + height - base_z
+    top = height  # the tree (with its pot) is `height` tall
     if kind == "conifer":
         trunk_top = np.array([0.0, 0.0, top])
         trunk = [tapered_segment(np.array([0.0, 0.0, base_z - 0.02]), trunk_top, trunk_r, trunk_r * 0.3, 10)]
@@ -330,7 +331,7 @@ def rubber_toy(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]
         pieces = [Piece("toy", m, body_rgb, 0.03, fill=True) for m in (body, tail, head)]
         pieces += [Piece("toy", beak, jitter(rng, (0.95, 0.45, 0.05)), 0.03, fill=True)]
         pieces += [Piece("toy", eye, (0.05, 0.05, 0.05), 0.02, fill=True, weight=2.0) for eye in eyes]
-        return pieces, _round({"kind": "duck", "size_m": size})
+        return pieces, _round({"kind": "duck", "size_m": size, "body_rgb": [round(v, 3) for v in body_rgb]})
     rgb = jitter(rng, pick(rng, TOY_COLOURS))
     body = ellipsoid(np.array([0, 0, size * 0.45]), size * np.array([0.22, 0.18, 0.28]), 2)
     head_c = np.array([0, 0, size * 0.88])

@@ -15,6 +15,8 @@ object's mass, and the coarse grid keeps the same physics at lower resolution.
 from __future__ import annotations
 
 import copy
+import hashlib
+import json
 import time
 from dataclasses import dataclass
 
@@ -58,7 +60,9 @@ class ForwardModel:
     """Simulates model variants and returns the tracked points, counting runs and seconds."""
 
     def __init__(self, cloud: SplatCloud, tracks: MeasuredTracks, device: str = "auto",
-                 fill: bool = False, fidelity: Fidelity | None = None) -> None:
+                 fill: bool = False, fidelity: Fidelity | None = None, cache: dict | None = None) -> None:
+        """`cache` (optional, may be shared between diagnoses of the same model and tracked
+        points) memoises simulated tracks by model variant, so repeated runs are free."""
         self.cloud = cloud
         self.tracks = tracks
         self.device = device
@@ -75,6 +79,12 @@ class ForwardModel:
             self.grid_scale = self.fidelity.grid_scale
         self._full_base: np.ndarray | None = None
         self._reduced_base: np.ndarray | None = None
+        self.cache = cache if cache is not None else {}
+        self.cache_hits = 0
+        self._context = _digest(tracks.ids, tracks.t, np.array([fill, self.frames, self.fps, len(cloud)]),
+                                self.keep if self.keep is not None else np.zeros(0),
+                                np.array([self.fidelity.max_particles, self.fidelity.grid_scale,
+                                          self.fidelity.min_grid, self.fidelity.seed]))
 
     @property
     def is_reduced(self) -> bool:
@@ -82,6 +92,15 @@ class ForwardModel:
 
     # ------------------------------------------------------------------ simulation
     def _run(self, cloud: SplatCloud, scene, ids: np.ndarray) -> np.ndarray:
+        key = (self._context, len(cloud), json.dumps(scene.to_dict(), sort_keys=True), _cloud_digest(cloud))
+        if key in self.cache:
+            self.cache_hits += 1
+            return self.cache[key]
+        result = self._simulate(cloud, scene, ids)
+        self.cache[key] = result
+        return result
+
+    def _simulate(self, cloud: SplatCloud, scene, ids: np.ndarray) -> np.ndarray:
         from ..sim.run import simulate
 
         start = time.perf_counter()
@@ -142,3 +161,18 @@ def reduced_subset(n: int, ids: np.ndarray, fidelity: Fidelity) -> tuple[np.ndar
     extra = min(max(fidelity.max_particles - len(tracked), 0), len(others))
     keep = np.sort(np.concatenate([tracked, rng.choice(others, extra, replace=False)]))
     return keep, np.searchsorted(keep, ids)
+
+
+def _digest(*arrays: np.ndarray) -> str:
+    h = hashlib.sha1()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(str(a.dtype).encode() + str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _cloud_digest(cloud: SplatCloud) -> str:
+    """Digest of what the simulation reads from a cloud (positions and material attributes)."""
+    names = [n for n in ("material_id", "E", "nu", "density", "part_id") if cloud.has(n)]
+    return _digest(cloud.means, *[cloud.get(n) for n in names])

@@ -146,9 +146,11 @@ def locate(r: np.ndarray, visible: np.ndarray, cloud: SplatCloud, ids: np.ndarra
                                {k: v for k, v in MATERIAL_NAMES.items()})
     rest = cloud.means[ids].astype(np.float64)
     regions += region_gaps(r, visible, spatial_clusters(rest, num_clusters), "cluster")
-    # a 3-D point distance of pure noise has RMS sqrt(3)·σ; call the gap real beyond 3× that
-    floor = 3.0 * np.sqrt(3.0) * sigma
-    above = np.nonzero(frame > max(floor, 1e-12))[0]
+    # pure noise gives a frame mean-square of 3σ² with relative spread sqrt(2/(3M)) over M
+    # visible points; the gap is real where a frame exceeds that by 4 spreads
+    m = np.maximum(visible.sum(axis=1), 1)
+    floor = np.sqrt(3.0 * sigma ** 2 * (1.0 + 4.0 * np.sqrt(2.0 / (3.0 * m))))
+    above = np.nonzero(frame > np.maximum(floor, 1e-12))[0]
     onset = int(above[0]) if len(above) else None
     rise = np.diff(frame)
     rising = [int(i + 1) for i in np.argsort(-rise)[:3] if rise[i] > 0] if len(rise) else []

@@ -20,6 +20,7 @@ import numpy as np
 
 BIC_THRESHOLD = 10.0          # ΔBIC for "very strong" evidence
 MIN_EXCESS_EXPLAINED = 0.3    # share of the above-noise squared gap a real effect must explain
+MIN_ORIGINAL_SHARE = 0.05     # in a chain: share of the first model's above-noise gap
 
 
 def bic(sse: float, n: int, k: int) -> float:
@@ -72,8 +73,14 @@ class Scored:
 def score_candidate(effect: str, part: int | None, params: dict, num_params: int, sse: float,
                     baseline_sse: float, n: int, noise_sigma: float, evaluations: int = 0,
                     bic_threshold: float = BIC_THRESHOLD,
-                    min_excess_explained: float = MIN_EXCESS_EXPLAINED) -> Scored:
-    """Score one fitted candidate against the baseline (current model) residual."""
+                    min_excess_explained: float = MIN_EXCESS_EXPLAINED,
+                    original_sse: float | None = None) -> Scored:
+    """Score one fitted candidate against the baseline (current model) residual.
+
+    In a chain (round ≥ 2) `original_sse` is the first model's SSE: a further effect must also
+    remove `MIN_ORIGINAL_SHARE` of the ORIGINAL above-noise gap, so that it cannot merely mop up
+    the small misfit left by the parameters of the effect added before it.
+    """
     base_bic = bic(baseline_sse, n, 0)
     cand_bic = bic(sse, n, num_params)
     delta = base_bic - cand_bic
@@ -81,6 +88,9 @@ def score_candidate(effect: str, part: int | None, params: dict, num_params: int
     excess = max(baseline_sse - n * noise_sigma ** 2, 0.0)
     excess_explained = (baseline_sse - sse) / excess if excess > 0 else 0.0
     significant = bool(delta > bic_threshold and excess_explained >= min_excess_explained)
+    if original_sse is not None and original_sse > baseline_sse:
+        original_excess = max(original_sse - n * noise_sigma ** 2, 1e-300)
+        significant = significant and (baseline_sse - sse) / original_excess >= MIN_ORIGINAL_SHARE
     return Scored(effect, part, params, num_params, sse, float(np.sqrt(3.0 * sse / n)), cand_bic,
                   aic(sse, n, num_params), float(delta), float(explained), float(excess_explained),
                   significant, evaluations)

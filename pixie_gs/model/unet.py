@@ -134,5 +134,5 @@ def masked_loss(logits: torch.Tensor, physical: torch.Tensor, target_class: torc
     diff = (physical.float() - target_physical.float()).permute(0, 2, 3, 4, 1).reshape(-1, 3)[occ]
     mse = (diff ** 2).sum(dim=0) / count
     loss = class_weight * ce + mse.sum()
-    return loss, {"ce": float(ce), "mse_log_E": float(mse[0]), "mse_nu": float(mse[1]),
-                  "mse_log_rho": float(mse[2])}
+    parts = mse.detach().cpu().tolist()
+    return loss, {"ce": float(ce.detach()), "mse_log_E": parts[0], "mse_nu": parts[1], "mse_log_rho": parts[2]}

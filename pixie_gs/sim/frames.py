@@ -20,6 +20,8 @@ from .run import FrameState
 
 FRAME_PATTERN = re.compile(r"frame_(\d{5,})\.ply")
 TRACKS_NAME = "tracks.npz"
+PREVIEW_NAME = "preview.png"
+PREVIEW_MAX_POINTS = 60_000  # preview renders a fixed random subset of at most this many Gaussians
 
 
 def frame_path(out_dir: str | Path, index: int) -> Path:
@@ -27,10 +29,11 @@ def frame_path(out_dir: str | Path, index: int) -> Path:
 
 
 def existing_outputs(out_dir: Path) -> list[Path]:
-    """Frame files and tracks.npz already in `out_dir` (sorted)."""
+    """Frame files, tracks.npz and preview.png already in `out_dir` (sorted)."""
     if not out_dir.is_dir():
         return []
-    return sorted(p for p in out_dir.iterdir() if FRAME_PATTERN.fullmatch(p.name) or p.name == TRACKS_NAME)
+    return sorted(p for p in out_dir.iterdir()
+                  if FRAME_PATTERN.fullmatch(p.name) or p.name in (TRACKS_NAME, PREVIEW_NAME))
 
 
 def check_output_dir(out_dir: str | Path, force: bool = False) -> Path:
@@ -58,14 +61,19 @@ def advance_covariances(cov0: np.ndarray, F: np.ndarray) -> np.ndarray:
 def frame_cloud(base: SplatCloud, cov0: np.ndarray, state: FrameState, tol: float = 0.0) -> SplatCloud:
     """`base` moved to `state`: new means, and scale/rotation from F Σ Fᵀ for the Gaussians whose
     F differs from the identity by more than `tol` (the others keep their stored bytes)."""
-    out = base.copy()
-    out.means = np.ascontiguousarray(state.x, np.float32)
+    # a shallow view of `base`: only the arrays the simulation changes are new
+    out = SplatCloud(means=np.ascontiguousarray(state.x, np.float32), log_scales=base.log_scales,
+                     rotations=base.rotations, opacity_logits=base.opacity_logits, sh_dc=base.sh_dc,
+                     sh_rest=base.sh_rest, extras=base.extras, property_order=base.property_order,
+                     source=base.source)
     if state.F is None:
         return out
     F = np.asarray(state.F, np.float64)
     changed = np.abs(F - np.eye(3)).reshape(len(F), 9).max(axis=1) > tol
     if changed.any():
         idx = np.flatnonzero(changed)
+        out.log_scales = base.log_scales.copy()
+        out.rotations = base.rotations.copy()
         part = SplatCloud(means=out.means[idx], log_scales=out.log_scales[idx], rotations=out.rotations[idx],
                           opacity_logits=out.opacity_logits[idx], sh_dc=out.sh_dc[idx],
                           sh_rest=out.sh_rest[idx])
@@ -79,8 +87,9 @@ class FrameWriter:
     """Streams frames of one run into `out_dir` (created on the first write).
 
     Use: `w = FrameWriter(dir, cloud, force)`; `w.write(state)` per frame (the `on_frame` of
-    `simulate`); `w.finish(t, x)` writes tracks.npz and removes stale frames of an earlier
-    longer run; `w.abort()` on failure removes everything this run wrote.
+    `simulate`); `w.write_preview(t, x, up)` a PNG strip of the run; `w.finish(t, x)` writes
+    tracks.npz and removes stale outputs of an earlier run (call it last); `w.abort()` on
+    failure removes everything this run wrote.
     """
 
     def __init__(self, out_dir: str | Path, cloud: SplatCloud, force: bool = False) -> None:
@@ -111,6 +120,26 @@ class FrameWriter:
         for old in existing_outputs(self.out_dir):
             if old not in keep:
                 old.unlink()
+        return path
+
+    def write_preview(self, t_s: np.ndarray, x: np.ndarray, up: str, panels: int = 6) -> Path:
+        """preview.png: a strip of `panels` evenly spaced frames (input coordinates viewed with
+        `up` upwards, fixed bounds over the whole run so motion shows), coloured by RGB."""
+        from ..render import contact_sheet, render_points, save_png
+
+        self._ensure_dir()
+        x = np.asarray(x)
+        n = x.shape[1]
+        pick = np.arange(n) if n <= PREVIEW_MAX_POINTS else \
+            np.sort(np.random.default_rng(0).choice(n, PREVIEW_MAX_POINTS, replace=False))
+        frames = np.unique(np.linspace(0, len(t_s) - 1, min(panels, len(t_s))).round().astype(int))
+        pts = x[:, pick].reshape(-1, 3)
+        bounds = (pts.min(axis=0), pts.max(axis=0))
+        rgb = self.base.rgb()[pick]
+        images = [render_points(x[i, pick], rgb, size=(220, 220), up=up, bounds=bounds) for i in frames]
+        path = self.out_dir / PREVIEW_NAME
+        save_png(contact_sheet(images, [f"t = {t_s[i]:.3f} s" for i in frames], columns=len(frames)), path)
+        self.written.append(path)
         return path
 
     def abort(self) -> None:

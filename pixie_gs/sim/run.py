@@ -8,7 +8,7 @@ the INPUT splat's coordinates again, so frames overlay the original file.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -87,7 +87,7 @@ def particle_volumes(x_m: np.ndarray, origin_m: np.ndarray, dx_m: float) -> np.n
     return (dx_m ** 3 / counts[inverse.reshape(-1)]).astype(np.float32)
 
 
-def _material_arrays(cloud: SplatCloud) -> tuple[np.ndarray, ...]:
+def material_arrays(cloud: SplatCloud) -> tuple[np.ndarray, ...]:
     """(material_id, E, nu, density, part_id) of the cloud, or a one-line InputError."""
     missing = [n for n in ("material_id", "E", "nu", "density") if not cloud.has(n)]
     if missing:
@@ -106,7 +106,7 @@ def build_particles(cloud: SplatCloud, scene: Scene, fill: bool = False) -> tupl
     `scene.part_overrides` scale E/ρ, set yield stresses and fix parts; `scene.fixed` holds
     particles by part id and/or by region (world m, tested at the start).
     """
-    mid, E, nu, rho, part = _material_arrays(cloud)
+    mid, E, nu, rho, part = material_arrays(cloud)
     tf = placement_transform(cloud.means, scene)
     x = tf.to_world(cloud.means)
     origin, dx = scene.domain_origin(), scene.dx
@@ -153,6 +153,9 @@ def _check_inside_domain(x_m: np.ndarray, scene: Scene, source: str | None) -> N
             "enlarge domain.size_m or shrink object.size_m in the scene", source or "scene")
 
 
+_material_arrays = material_arrays  # earlier private name, used by cmd_diagnose
+
+
 # ---------------------------------------------------------------------------------- running
 @dataclass
 class FrameState:
@@ -175,9 +178,9 @@ class Trajectory:
     x: np.ndarray
     transform: WorldTransform
     F: np.ndarray | None = None
-    dt_s: float = float("nan")
-    filled: int = 0
-    extras: dict = field(default_factory=dict)
+    dt_s: float = float("nan")  # stable substep of the elastic CFL (s)
+    substeps_per_frame: int = 0  # substeps the last frame took
+    filled: int = 0  # interior particles simulated but not output
 
     def __len__(self) -> int:
         return len(self.t)
@@ -192,10 +195,13 @@ def simulate(
     on_frame: Callable[[FrameState], None] | None = None,
     fill: bool = False,
     keep_deformation: bool = False,
+    quiet: bool = False,
 ) -> Trajectory:
     """Simulate `cloud` in `scene` for `frames` output frames (frame 0 is the initial state at
     t = 0, frame i at t = i / fps s). `on_frame` is called with each FrameState as soon as it
-    is ready (used to stream frames to disk and rerun). Raises ComputationError on divergence."""
+    is ready (used to stream frames to disk and rerun). `keep_deformation` stores F per frame in
+    the Trajectory (T·N·36 bytes); `quiet` drops the stage line and progress bar (for callers
+    that simulate in loops). Raises InputError for unusable input, ComputationError on divergence."""
     from ..devices import resolve_warp_device
     from .solver import MPMSolver
 
@@ -206,6 +212,8 @@ def simulate(
     particles, tf = build_particles(cloud, scene, fill=fill)
     n = len(cloud)
     solver = MPMSolver(particles, scene, resolve_warp_device(device))
+    if not quiet:
+        describe_placement(cloud, scene, particles, solver.dt)
     x0_in = cloud.means.astype(np.float32)
     x0_world = particles.x[:n].astype(np.float64)
     t = np.arange(frames, dtype=np.float64) / fps
@@ -217,7 +225,8 @@ def simulate(
     if on_frame is not None:
         on_frame(FrameState(0, 0.0, xs[0], x0_world.astype(np.float32), None))
     need_F = keep_deformation or on_frame is not None
-    for i in progress(range(1, frames), desc="simulate", total=frames - 1, unit="frame"):
+    steps = range(1, frames) if quiet else progress(range(1, frames), desc="simulate", total=frames - 1, unit="frame")
+    for i in steps:
         solver.step_frame(1.0 / fps)
         xw = np.asarray(solver.positions())[:n]
         xs[i] = x0_in + tf.displacement_to_input(xw - x0_world).astype(np.float32)
@@ -226,17 +235,20 @@ def simulate(
             Fs[i] = F
         if on_frame is not None:
             on_frame(FrameState(i, float(t[i]), xs[i], xw.astype(np.float32), F))
-    return Trajectory(t=t, x=xs, transform=tf, F=Fs, dt_s=float(getattr(solver, "dt", float("nan"))),
-                      filled=len(particles) - n)
+    return Trajectory(t=t, x=xs, transform=tf, F=Fs, dt_s=float(solver.dt),
+                      substeps_per_frame=int(solver.substeps_last_frame), filled=len(particles) - n)
 
 
-def describe_placement(cloud: SplatCloud, scene: Scene, tf: WorldTransform, particles: Particles) -> None:
-    """One stage line saying where the object went and how many particles it became."""
-    lo = particles.x.min(axis=0)
-    hi = particles.x.max(axis=0)
-    stage(f"placed {len(cloud)} Gaussians (+{len(particles) - len(cloud)} filling) as a "
-          f"{scene.object.size_m:g} m object, up={scene.up}: {np.round(lo, 3).tolist()}..{np.round(hi, 3).tolist()} m")
+def describe_placement(cloud: SplatCloud, scene: Scene, particles: Particles, dt_s: float) -> None:
+    """One stage line: where the object went, how many particles it became, the substep."""
+    lo = particles.x.min(axis=0).astype(np.float64)
+    hi = particles.x.max(axis=0).astype(np.float64)
+    filled = len(particles) - len(cloud)
+    stage(f"placed {len(cloud)} Gaussians{f' (+{filled} interior particles)' if filled else ''} as a "
+          f"{scene.object.size_m:g} m object (up={scene.up}) at {np.round(lo, 3).tolist()}..{np.round(hi, 3).tolist()} m; "
+          f"grid {scene.dx * 100:.3g} cm, substep {dt_s:.3g} s")
 
 
 __all__ = ["WorldTransform", "FrameState", "Trajectory", "build_particles", "simulate", "placement_transform",
+           "material_arrays",
            "particle_volumes", "up_rotation"]

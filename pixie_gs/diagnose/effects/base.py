@@ -25,7 +25,8 @@ class Param:
     """One fitted parameter: bounds [lo, hi] in `unit`, searched in log10 space when `log`.
 
     `off` is the value at which the effect vanishes (None when it has none inside the bounds);
-    `probe` is the value tried first when screening candidates.
+    `probe` is the value tried first when screening candidates (with `off` it gives the
+    sensitivity); `extra_probes` are further screening values for strongly non-linear effects.
     """
 
     name: str
@@ -35,6 +36,7 @@ class Param:
     log: bool
     probe: float
     off: float | None = None
+    extra_probes: tuple[float, ...] = ()
 
     def to_search(self, value: float) -> float:
         """Map a physical value to the search coordinate (log10 or identity)."""

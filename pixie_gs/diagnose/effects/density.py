@@ -25,5 +25,5 @@ EFFECT = PartDensity(
     doc=" ".join(__doc__.split()),
     per_part=True,
     kind="material",
-    params_=(Param("density_scale", "", 0.05, 20.0, log=True, probe=2.0, off=1.0),),
+    params_=(Param("density_scale", "", 0.05, 20.0, log=True, probe=2.0, off=1.0, extra_probes=(4.0, 0.4)),),
 )

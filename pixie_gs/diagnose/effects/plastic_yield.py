@@ -18,7 +18,8 @@ class PartPlasticYield(Effect):
         scale = float(context.scene.part_overrides.get(context.part).E_scale) \
             if context.part in context.scene.part_overrides else 1.0
         E = E * scale
-        return (Param("yield_stress_pa", "Pa", 1e-5 * E, 0.3 * E, log=True, probe=3e-3 * E, off=None),)
+        return (Param("yield_stress_pa", "Pa", 1e-5 * E, 0.3 * E, log=True, probe=3e-3 * E, off=None,
+                      extra_probes=(3e-2 * E,)),)
 
     def apply(self, scene, cloud, part, values):
         scene = self.edited(scene)

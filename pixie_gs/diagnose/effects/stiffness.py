@@ -25,5 +25,5 @@ EFFECT = PartStiffness(
     doc=" ".join(__doc__.split()),
     per_part=True,
     kind="material",
-    params_=(Param("E_scale", "", 0.01, 100.0, log=True, probe=0.5, off=1.0),),
+    params_=(Param("E_scale", "", 0.01, 100.0, log=True, probe=0.5, off=1.0, extra_probes=(0.25, 2.5)),),
 )

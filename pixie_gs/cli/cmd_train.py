@@ -1,0 +1,63 @@
+"""`pixie train DATA_DIR --out CKPT`: train the material U-Net on a generated dataset."""
+from __future__ import annotations
+
+import argparse
+
+from ..devices import DEVICE_CHOICES
+
+
+def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "train", parents=parents, help="train the material network on a generated dataset",
+        description="Train the feature-grid 3D U-Net on DATA_DIR/train (validated on DATA_DIR/val each epoch). "
+        "The best weights by validation score go to CKPT; CKPT.state.pt holds what --resume needs.",
+        epilog="example: pixie train data/ --out model.pt --epochs 40 --device cuda --time-budget-s 300",
+    )
+    p.add_argument("data_dir", metavar="DATA_DIR", help="dataset made by `pixie generate` (train/ and val/ splits)")
+    p.add_argument("--out", required=True, metavar="CKPT", help="checkpoint file to write (.pt)")
+    p.add_argument("--epochs", type=int, default=30)
+    p.add_argument("--device", choices=DEVICE_CHOICES, default="auto")
+    p.add_argument("--time-budget-s", type=float, default=None, help="stop (and anneal the LR) within this wall time")
+    p.add_argument("--resume", action="store_true", help="continue from CKPT.state.pt")
+    p.add_argument("--batch-size", type=int, default=8)
+    p.add_argument("--lr", type=float, default=2e-3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--inputs", choices=["full", "rgb", "occupancy"], default="full",
+                   help="input channels: every feature (default), occupancy+RGB, or occupancy only (ablation)")
+    p.add_argument("--base-channels", type=int, default=16)
+    p.add_argument("--multipliers", default="1,2,4", help="U-Net width multipliers per level, e.g. 1,2,4")
+    p.add_argument("--res-blocks", type=int, default=1)
+    p.add_argument("--resolution", type=int, default=64, help="grid cells per side (divisible by 2^(levels-1))")
+    p.add_argument("--no-augment", action="store_true")
+    p.add_argument("--workers", type=int, default=1, help="processes reading the dataset")
+    p.add_argument("--limit-train", type=int, default=None, help="use only the first K train objects")
+    p.add_argument("--limit-val", type=int, default=None, help="use only the first K val objects")
+    p.add_argument("--log", default=None, metavar="JSON", help="write the per-epoch history here")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..devices import resolve_torch_device
+    from ..errors import InputError
+    from ..model.train import TrainConfig, train
+
+    try:
+        mults = [int(v) for v in args.multipliers.split(",")]
+    except ValueError:
+        raise InputError(f"--multipliers must be integers separated by commas (got '{args.multipliers}')") from None
+    if args.resolution % (2 ** (len(mults) - 1)):
+        raise InputError(f"--resolution {args.resolution} is not divisible by 2^{len(mults) - 1}")
+    for name in ("epochs", "batch_size", "base_channels", "res_blocks", "workers"):
+        if getattr(args, name) < 1:
+            raise InputError(f"--{name.replace('_', '-')} must be ≥ 1")
+    cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, time_budget_s=args.time_budget_s,
+                      seed=args.seed, augment=not args.no_augment, workers=args.workers,
+                      limit_train=args.limit_train, limit_val=args.limit_val, input_mode=args.inputs,
+                      model={"base_channels": args.base_channels, "multipliers": mults, "res_blocks": args.res_blocks},
+                      features={"resolution": args.resolution})
+    meta = train(args.data_dir, args.out, cfg, resolve_torch_device(args.device), args.resume, args.log)
+    best = meta.get("val", {}).get("voxel", {})
+    print(f"checkpoint {args.out}: best epoch {meta.get('best_epoch')}  val accuracy {best.get('accuracy', 0):.4f}  "
+          f"val avg mse {best.get('mse_avg', 0):.4f}")
+    return 0

@@ -1,0 +1,267 @@
+"""The discrepancy loop: simulate → locate → fit & score candidate effects → add the winner → repeat.
+
+Round 1 screens every (effect, part) candidate around the given model (see fit.py), verifies
+and refines the most promising, and ranks all by ΔBIC (score.py). The winner, if significant,
+is added to the model and a new round tests for a second effect on top of it, re-using the
+round-1 sensitivities to predict each candidate's gain (no new probe runs), until nothing
+significant is left or `max_effects` effects were added.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError
+from ..materials import STATIONARY
+from ..progress import progress, stage
+from ..splat import SplatCloud
+from .effects import Effect, get_effect, registry
+from .fit import Candidate, Problem, drop_predictions, make_candidates, predict_linear, refine, screen, verify
+from .forward import Fidelity, ForwardModel
+from .locate import Location, locate, residuals, rms_gap, spatial_clusters
+from .measured import MeasuredTracks
+from .score import BIC_THRESHOLD, MIN_EXCESS_EXPLAINED, Scored, rank, score_candidate
+
+
+@dataclass
+class DiagnoseOptions:
+    """Knobs of the loop (defaults sized for a 2-core CPU; see docs/diagnose.md)."""
+
+    effects: list[str] | None = None      # None: the whole library
+    max_effects: int = 2                  # length of the chain of added effects
+    max_parts: int = 2                    # per-part effects are tried on the worst this-many parts
+    verify_top: int = 4                   # candidates simulated at their linear prediction
+    refine_top: int = 2                   # candidates refined to `max_evals` runs
+    max_evals: int = 8                    # runs per candidate (screen + verify + refine)
+    min_refine_explained: float = 0.1     # refine only candidates explaining this share of the excess gap
+    bic_threshold: float = BIC_THRESHOLD
+    min_excess_explained: float = MIN_EXCESS_EXPLAINED
+    fidelity: Fidelity = field(default_factory=Fidelity)
+    fill: bool = False                    # fill closed objects' interiors (as `pixie simulate --fill`)
+
+
+@dataclass
+class RoundResult:
+    index: int
+    baseline_sse: float
+    baseline_rms: float
+    location: Location
+    ranking: list[Scored]
+    chosen: Scored | None
+
+
+@dataclass
+class Diagnosis:
+    """Everything the report needs: rounds, the accepted chain, the improved model, the gap."""
+
+    rounds: list[RoundResult]
+    accepted: list[Scored]
+    scene: object
+    cloud: SplatCloud
+    tracks: MeasuredTracks
+    base_pred: np.ndarray
+    final_pred: np.ndarray
+    noise_sigma: float
+    runs: int
+    sim_seconds: float
+    cache_hits: int
+    parts_from_materials: bool = False
+
+    @property
+    def gap_before(self) -> float:
+        return rms_gap(residuals(self.tracks.x, self.base_pred, self.tracks.visible), self.tracks.visible)
+
+    @property
+    def gap_after(self) -> float:
+        return rms_gap(residuals(self.tracks.x, self.final_pred, self.tracks.visible), self.tracks.visible)
+
+    @property
+    def effect(self) -> Scored | None:
+        return self.accepted[0] if self.accepted else None
+
+
+def working_cloud(cloud: SplatCloud) -> tuple[SplatCloud, bool]:
+    """The cloud with a `part_id` (material classes stand in for parts when it has none)."""
+    if cloud.has("part_id"):
+        return cloud, False
+    out = cloud.copy()
+    mid = cloud.get("material_id") if cloud.has("material_id") else np.zeros(len(cloud), np.int32)
+    out.set("part_id", mid.astype(np.int32), np.int32)
+    return out, True
+
+
+def movable_parts(cloud: SplatCloud, scene) -> set[int]:
+    """Parts with at least one particle the solver moves (not stationary, not held fixed)."""
+    part = cloud.get("part_id")
+    mid = cloud.get("material_id") if cloud.has("material_id") else np.zeros(len(cloud), np.int32)
+    held = {p for p, o in scene.part_overrides.items() if o.fixed}
+    for spec in scene.fixed:
+        held |= set(spec.part_ids)
+    return {int(p) for p in np.unique(part) if int(p) not in held and np.any(mid[part == p] != STATIONARY)}
+
+
+def evidence(problem: Problem, pred: np.ndarray, labels: dict[str, np.ndarray], t: np.ndarray) -> dict:
+    """The residual signature a fit explains: share of the squared gap removed per region and
+    the times where it removes most."""
+    r_after = residuals(problem.measured_x, pred, problem.visible)
+    before, after = np.square(problem.r0), np.square(r_after)
+    out: dict = {}
+    for kind, lab in labels.items():
+        shares = {}
+        for key in np.unique(lab):
+            b = float(before[:, lab == key].sum())
+            if b > 0:
+                shares[str(int(key))] = round(1.0 - float(after[:, lab == key].sum()) / b, 4)
+        out[f"explained_by_{kind}"] = shares
+    gain = before.sum(axis=(1, 2)) - after.sum(axis=(1, 2))
+    top = np.argsort(-gain)[:3]
+    out["most_explained_at_s"] = [round(float(t[i]), 4) for i in sorted(top) if gain[i] > 0]
+    return out
+
+
+class _Runner:
+    """Shared state of one diagnosis: the forward model, options and progress display."""
+
+    def __init__(self, model: ForwardModel, tracks: MeasuredTracks, options: DiagnoseOptions,
+                 effects: list[Effect]) -> None:
+        self.model = model
+        self.tracks = tracks
+        self.options = options
+        self.effects = effects
+        self.sigma = float("inf")
+        self.original_sse: float | None = None  # SSE of the model as given (set in round 1)
+
+    def score(self, problem: Problem, cand: Candidate, labels: dict, n: int) -> Scored | None:
+        best = cand.best
+        if best is None:
+            return None
+        s = score_candidate(cand.effect.name, cand.part, dict(best.values), len(cand.params), best.sse,
+                            problem.base_sse, n, self.sigma, cand.runs, self.options.bic_threshold,
+                            self.options.min_excess_explained, self.original_sse)
+        if best.pred is not None:
+            s.evidence = evidence(problem, best.pred, labels, self.tracks.t)
+        return s
+
+    def excess_share(self, problem: Problem, sse: float | None, n: int) -> float:
+        if sse is None or not np.isfinite(sse):
+            return 0.0
+        excess = max(problem.base_sse - n * self.sigma ** 2, 1e-300)
+        return (problem.base_sse - sse) / excess
+
+    def run_round(self, index: int, problem: Problem, cloud: SplatCloud, scene,
+                  previous: list[Candidate] | None, exclude: set[tuple[str, int | None]]
+                  ) -> tuple[RoundResult, list[Candidate], dict[tuple, Candidate]]:
+        tracks, opts = self.tracks, self.options
+        if self.original_sse is None:
+            self.original_sse = problem.base_sse
+        loc = locate(problem.r0, tracks.visible, cloud, tracks.ids)
+        self.sigma = min(self.sigma, loc.noise_sigma) if loc.noise_sigma > 0 else self.sigma
+        if not np.isfinite(self.sigma):
+            self.sigma = 0.0
+        n = tracks.num_observations
+        movable = movable_parts(cloud, scene)
+        parts = [p for p in loc.ranked_parts() if p in movable][: opts.max_parts]
+        labels = {"part": cloud.get("part_id")[tracks.ids],
+                  "cluster": spatial_clusters(cloud.means[tracks.ids].astype(np.float64), 4)}
+        cands = [c for c in make_candidates(self.effects, scene, cloud, parts)
+                 if (c.effect.name, c.part) not in exclude]
+        stage(f"round {index}: RMS gap {loc.rms:.4g} (noise σ ≈ {self.sigma:.2g} per axis); "
+              f"worst part {parts[0] if parts else '-'}; {len(cands)} candidates")
+        if previous is None:
+            for cand in progress(cands, desc=f"screen (round {index})", total=len(cands), unit="cand"):
+                screen(problem, cand)
+        else:
+            old = {(c.effect.name, c.part): c for c in previous}
+            r_flat = problem.flat(problem.r0)
+            for cand in cands:
+                prior = old.get((cand.effect.name, cand.part))
+                if prior is not None and prior.jacobian is not None:
+                    cand.jacobian = prior.jacobian
+                    predict_linear(problem, cand, r_flat, cand.off_values())
+                elif prior is not None and prior.best is not None and prior.base_sse is not None \
+                        and prior.best.sse < prior.base_sse:
+                    # no sensitivity (threshold / switch effects) but it helped before: one run
+                    # at its earlier best on top of the new model
+                    problem.evaluate(cand, prior.best.values)
+
+        def estimate(c: Candidate) -> float:
+            vals = [e.sse for e in c.evaluations] + ([c.predicted_sse] if c.predicted_sse is not None else [])
+            return min(vals) if vals else float("inf")
+
+        cands.sort(key=estimate)
+        for cand in progress(cands[: opts.verify_top], desc=f"verify (round {index})", unit="cand"):
+            verify(problem, cand)
+        cands.sort(key=lambda c: c.best.sse if c.best else float("inf"))
+        promising = [c for c in cands[: opts.refine_top]
+                     if c.best is not None and c.best.sse < problem.base_sse
+                     and score_candidate(c.effect.name, c.part, {}, len(c.params), c.best.sse, problem.base_sse,
+                                         n, self.sigma).delta_bic > 0
+                     and self.excess_share(problem, c.best.sse, n) >= opts.min_refine_explained]
+        for cand in progress(promising, desc=f"refine (round {index})", unit="cand"):
+            refine(problem, cand, opts.max_evals)
+        scored = [s for s in (self.score(problem, c, labels, n) for c in cands) if s is not None]
+        ranking = rank(scored)
+        chosen = ranking[0] if ranking and ranking[0].significant else None
+        by_key = {(c.effect.name, c.part): c for c in cands}
+        for c in cands:
+            if chosen is None or (c.effect.name, c.part) != (chosen.effect, chosen.part):
+                drop_predictions(c)
+        result = RoundResult(index, problem.base_sse, loc.rms, loc, ranking, chosen)
+        if chosen:
+            stage(f"round {index}: best {chosen.label} {chosen.params} explains "
+                  f"{100 * chosen.explained:.0f}% of the squared gap (ΔBIC {chosen.delta_bic:.1f})")
+        else:
+            best = ranking[0] if ranking else None
+            stage(f"round {index}: nothing significant is missing"
+                  + (f" (best {best.label}: ΔBIC {best.delta_bic:.1f}, "
+                     f"{100 * best.excess_explained:.0f}% of the above-noise gap)" if best else ""))
+        return result, cands, by_key
+
+
+def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "auto",
+             options: DiagnoseOptions | None = None, cache: dict | None = None) -> Diagnosis:
+    """Find, fit and add the effects the model (cloud + scene) is missing versus `tracks`."""
+    options = options or DiagnoseOptions()
+    effects = list(registry().values()) if not options.effects else [get_effect(n) for n in options.effects]
+    if not effects:
+        raise InputError("no candidate effects to test")
+    work, from_materials = working_cloud(cloud)
+    model = ForwardModel(work, tracks, device=device, fill=options.fill, fidelity=options.fidelity, cache=cache)
+    if model.is_reduced:
+        stage(f"fitting on a reduced model: {len(model.keep)} of {len(work)} Gaussians, "
+              f"grid × {model.grid_scale:g} (delta-corrected against the full model)")
+    runner = _Runner(model, tracks, options, effects)
+    stage("simulating the model as given")
+    base_pred = model.set_baseline(scene, work)
+    cur_scene, cur_cloud, cur_pred = scene, work, base_pred
+    rounds: list[RoundResult] = []
+    accepted: list[Scored] = []
+    previous: list[Candidate] | None = None
+    exclude: set[tuple[str, int | None]] = set()
+    for index in range(1, options.max_effects + 2):
+        problem = Problem(model, cur_scene, cur_cloud, tracks.x, tracks.visible, cur_pred)
+        result, cands, by_key = runner.run_round(index, problem, cur_cloud, cur_scene, previous, exclude)
+        rounds.append(result)
+        chosen = result.chosen
+        if chosen is None or len(accepted) >= options.max_effects:
+            if chosen is not None:
+                result.chosen = None  # chain is full: report but do not add
+            break
+        accepted.append(chosen)
+        exclude.add((chosen.effect, chosen.part))
+        winner = by_key[(chosen.effect, chosen.part)]
+        cur_scene, cur_cloud = winner.effect.apply(cur_scene, cur_cloud, winner.part, dict(chosen.params))
+        if model.is_reduced:
+            stage("re-simulating the full model with the added effect")
+            cur_pred = model.set_baseline(cur_scene, cur_cloud)
+        else:
+            cur_pred = winner.best.pred if winner.best and winner.best.pred is not None \
+                else model.simulate_full(cur_scene, cur_cloud)
+            model.set_baseline(cur_scene, cur_cloud, full_prediction=cur_pred)
+        previous = [c for c in (previous or []) if (c.effect.name, c.part) not in by_key] + cands
+        if len(accepted) >= options.max_effects:
+            break
+    return Diagnosis(rounds, accepted, copy.deepcopy(cur_scene), cur_cloud, tracks, base_pred, cur_pred,
+                     runner.sigma, model.runs, model.seconds, model.cache_hits, from_materials)

@@ -1,0 +1,93 @@
+"""Training/evaluation batches: (augmented) Gaussians → input grids and voxel labels, on the device.
+
+Inputs go through exactly the code `pixie annotate` uses (`prepare_gaussians` + `splat_field` +
+`grid_channels`). Voxel labels come from the same weights w_i(x) = α_i G_i(x): the class is the
+weighted vote of the Gaussians' material ids, the targets their weighted mean normalised
+(log10 E, ν, log10 ρ). Augmentation acts on the Gaussians before normalisation: a random yaw
+rotation about +z, random x/y flips, per-axis scale jitter (covariances follow: Σ' = A Σ Aᵀ) and
+colour jitter (per-channel gain and a brightness offset).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ..field import GaussianTensors, grid_channels, prepare_gaussians, splat_field
+from ..materials import BACKGROUND, NUM_CLASSES
+from .checkpoint import FeatureSpec
+
+
+@dataclass
+class AugmentConfig:
+    yaw: bool = True
+    flips: bool = True
+    scale_jitter: float = 0.15  # per-axis stretch factor in [1 − j, 1 + j]
+    colour_gain: float = 0.1  # per-channel RGB gain in [1 − g, 1 + g]
+    brightness: float = 0.05  # RGB offset in [−b, b]
+
+
+@dataclass
+class Batch:
+    """inputs (B,C,N,N,N) full grid channels, occupied (B,N,N,N), target_class (B,N,N,N) long,
+    target_physical (B,3,N,N,N), and each object's unit-cube Gaussian centres (list of (M_b,3))."""
+
+    inputs: object
+    occupied: object
+    target_class: object
+    target_physical: object
+    means_unit: list
+
+
+def augmentation_matrix(gen, cfg: AugmentConfig, device):
+    """A = S · R_yaw · F (3,3): flips, then a yaw rotation about +z, then a per-axis stretch."""
+    import torch
+
+    u = torch.rand(6, generator=gen)
+    theta = float(u[0]) * 2 * math.pi if cfg.yaw else 0.0
+    c, s = math.cos(theta), math.sin(theta)
+    rot = torch.tensor([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    flip = torch.diag(torch.tensor([(-1.0 if float(u[1]) < 0.5 else 1.0) if cfg.flips else 1.0,
+                                    (-1.0 if float(u[2]) < 0.5 else 1.0) if cfg.flips else 1.0, 1.0]))
+    stretch = torch.diag(1.0 + cfg.scale_jitter * (2 * u[3:6] - 1))
+    return (stretch @ rot @ flip).to(device)
+
+
+def build_batch(store, ids: list[int], spec: FeatureSpec, augment: AugmentConfig | None = None,
+                gen=None) -> Batch:
+    """Grids and labels for objects `ids` of a DeviceStore (augmented when `augment` is given)."""
+    import torch
+
+    dev = store.device
+    n = spec.resolution
+    mus, covs, alphas, feats, bidx, means_unit = [], [], [], [], [], []
+    for b, i in enumerate(ids):
+        o = store.object(i)
+        means, cov, rgb = o["means"], o["covariances"], o["rgb"]
+        if augment is not None:
+            a = augmentation_matrix(gen, augment, dev)
+            means = means @ a.T
+            cov = a @ cov @ a.T
+            g = torch.rand(4, generator=gen).to(dev)
+            gain = 1.0 + augment.colour_gain * (2 * g[:3] - 1)
+            rgb = (rgb * gain + augment.brightness * (2 * g[3] - 1)).clamp(0.0, 1.0)
+        mu, cv, al, ft, _, _ = prepare_gaussians(
+            GaussianTensors(means, cov, o["alphas"], rgb, o["sh_energy"], o["extras"]), spec.margin)
+        labels = torch.cat([torch.nn.functional.one_hot(o["material_id"], NUM_CLASSES).float(), o["physical"]], 1)
+        mus.append(mu)
+        covs.append(cv)
+        alphas.append(al)
+        feats.append(torch.cat([ft, labels], dim=1))
+        bidx.append(torch.full((len(mu),), b, dtype=torch.long, device=dev))
+        means_unit.append(mu)
+    feats_all = torch.cat(feats)
+    dens, sums = splat_field(torch.cat(mus), torch.cat(covs), torch.cat(alphas), feats_all, n,
+                             filter_voxels=spec.filter_voxels, batch_index=torch.cat(bidx), batch_size=len(ids))
+    n_in = feats_all.shape[1] - NUM_CLASSES - 3
+    inputs, occ = grid_channels(dens, sums[..., :n_in], n)
+    votes = sums[..., n_in:n_in + NUM_CLASSES]
+    target_class = torch.where(occ.view(len(ids), -1), votes.argmax(-1), torch.full_like(votes[..., 0], BACKGROUND).long())
+    phys = sums[..., n_in + NUM_CLASSES:] / dens.clamp_min(1e-8)[..., None]
+    phys = torch.where(occ.view(len(ids), -1, 1), phys, torch.zeros_like(phys))
+    b = len(ids)
+    return Batch(inputs, occ, target_class.view(b, n, n, n),
+                 phys.view(b, n, n, n, 3).permute(0, 4, 1, 2, 3).contiguous(), means_unit)

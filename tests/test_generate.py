@@ -1,0 +1,262 @@
+"""`pixie generate` and pixie_gs.dataset: real .ply files written and read back, labels audited
+against the class table, determinism across worker counts, balance, shells vs filled piles."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pixie_gs.cli.main import main
+from pixie_gs.dataset.generate import SPLITS, class_for_index, object_seed
+from pixie_gs.dataset.labels import (ClassSpec, check_object_labels, load_class_table, parse_constraint,
+                                     sample_part_values)
+from pixie_gs.dataset.loader import list_objects, load_object
+from pixie_gs.errors import InputError
+from pixie_gs.materials import JELLY, METAL, SAND, SNOW, STATIONARY
+
+TABLE = load_class_table()
+ALL_CLASSES = ["tree", "flowers", "shrubs", "grass", "rubber_ducks_toys", "sport_balls", "soda_cans",
+               "metal_crates", "sand", "snow_mud"]
+SMALL = ["--gaussians", "1500", "--quiet"]
+
+
+def files_of(directory: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(directory.iterdir())}
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    """Two objects of every class (20), small, written through the CLI in this process."""
+    out = tmp_path_factory.mktemp("gen") / "data"
+    assert main(["generate", str(out), "--count", "20", "--seed", "7", *SMALL,
+                 "--preview", str(out.parent / "preview.png")]) == 0
+    return out
+
+
+def test_table_has_the_ten_classes_with_paper_values():
+    assert list(TABLE) == ALL_CLASSES
+    tree = TABLE["tree"]
+    assert [p.name for p in tree.parts] == ["pot", "trunk", "leaves"]
+    # single table values are widened ±20 % (E, density) and ±0.03 (nu) around the paper's centre
+    assert tree.part("trunk").E_pa == pytest.approx((1.6e6, 2.4e6))
+    assert tree.part("leaves").density_kg_m3 == pytest.approx((160.0, 240.0))
+    assert tree.part("pot").nu == pytest.approx((0.37, 0.43))
+    assert tree.part("pot").material_id == STATIONARY and tree.part("trunk").material_id == JELLY
+    assert TABLE["soda_cans"].part("can").E_pa == (5e10, 8e10)  # given ranges are used as they are
+    assert TABLE["soda_cans"].part("can").material_id == METAL
+    assert TABLE["sand"].part("sand").material_id == SAND
+    assert TABLE["snow_mud"].part("mud").material_id == SNOW
+
+
+def test_every_object_inside_its_ranges_and_constraints(dataset):
+    paths = list_objects(dataset, "train")
+    assert len(paths) == 20
+    seen = []
+    for path in paths:
+        cloud, meta = load_object(path)
+        spec = TABLE[meta["class"]]
+        seen.append(meta["class"])
+        material_id, E, nu, rho = cloud.get_materials()
+        part_id = cloud.get("part_id")
+        assert part_id.dtype == np.int32 and material_id.dtype == np.int32
+        assert meta["gaussians"] == len(cloud)
+        # per-Gaussian labels are exactly the part values of the record, part by part
+        from_cloud = {}
+        for part in meta["parts"]:
+            sel = part_id == part["part_id"]
+            assert sel.sum() == part["count"] > 0
+            assert spec.parts[part["part_id"]].name == part["name"]
+            values = {"E": set(E[sel].tolist()), "nu": set(nu[sel].tolist()), "density": set(rho[sel].tolist()),
+                      "material_id": set(material_id[sel].tolist())}
+            assert all(len(v) == 1 for v in values.values()), f"{path.name}: part {part['name']} not constant"
+            from_cloud[part["name"]] = {k: v.pop() for k, v in values.items()}
+            assert from_cloud[part["name"]]["E"] == part["E"]
+        assert sum(p["count"] for p in meta["parts"]) == len(cloud)
+        assert check_object_labels(spec, from_cloud) == [], path.name
+        required = [p.name for p in spec.parts if p.presence >= 1.0]
+        assert set(required) <= set(from_cloud)
+    assert sorted(set(seen)) == sorted(ALL_CLASSES)
+    assert all(seen.count(c) == 2 for c in ALL_CLASSES)  # balanced
+
+
+def test_index_file_and_preview(dataset):
+    index = json.loads((dataset / "train" / "index.json").read_text())
+    assert index["count"] == 20 and index["split"] == "train" and index["seed"] == 7
+    assert index["class_counts"] == {c: 2 for c in ALL_CLASSES}
+    assert [o["index"] for o in index["objects"]] == list(range(20))
+    assert [o["seed"] for o in index["objects"]] == [object_seed(7, "train", i) for i in range(20)]
+    from PIL import Image
+
+    sheet = np.asarray(Image.open(dataset.parent / "preview.png").convert("RGB"))
+    # two objects per class, each as (rgb, material): 40 cells of 200×(200 + 16 label) px, 4 per row
+    assert sheet.shape[1] == 4 * 200 and sheet.shape[0] == 10 * (200 + 16)
+    cells = sheet.reshape(10, 216, 4, 200, 3)[:, 16:]
+    assert ((cells < 250).any(axis=-1).mean(axis=(1, 3)) > 0.02).all()  # every cell shows an object
+
+
+def test_shells_are_hollow_and_piles_are_filled(dataset):
+    interior_share = {}
+    for path in list_objects(dataset, "train"):
+        cloud, meta = load_object(path)
+        normal = np.stack([cloud.get("nx"), cloud.get("ny"), cloud.get("nz")], axis=1)
+        interior_share.setdefault(meta["class"], []).append(float((np.abs(normal).sum(axis=1) == 0).mean()))
+    for hollow in ("soda_cans", "metal_crates", "sport_balls"):
+        assert max(interior_share[hollow]) == 0.0, hollow
+    for filled in ("sand", "snow_mud", "rubber_ducks_toys"):
+        assert min(interior_share[filled]) > 0.4, filled
+
+
+def test_plausible_colours(dataset):
+    """Mean colours carry the class: green leaves, brown trunk, tan sand, white-grey snow, brown mud."""
+    means = {}
+    for path in list_objects(dataset, "train"):
+        cloud, meta = load_object(path)
+        part_id, rgb = cloud.get("part_id"), cloud.rgb()
+        for part in meta["parts"]:
+            means.setdefault((meta["class"], part["name"]), []).append(rgb[part_id == part["part_id"]].mean(0))
+    for r, g, b in means[("tree", "trunk")]:
+        assert r > g > b  # bark brown
+    for r, g, b in means[("sand", "sand")]:
+        assert r > g > b and r > 0.55
+    for r, g, b in means[("snow_mud", "snow")]:
+        assert min(r, g, b) > 0.7
+    for r, g, b in means[("snow_mud", "mud")]:
+        assert r > b and max(r, g, b) < 0.5
+    for r, g, b in means[("shrubs", "foliage")]:
+        assert g > r and g > b
+
+
+def test_same_seed_same_bytes_any_worker_count_and_different_seed_differs(tmp_path):
+    a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    assert main(["generate", str(a), "--count", "10", "--seed", "3", "--workers", "1", *SMALL]) == 0
+    assert main(["generate", str(b), "--count", "10", "--seed", "3", "--workers", "2", *SMALL]) == 0
+    assert main(["generate", str(c), "--count", "10", "--seed", "4", "--workers", "1", *SMALL]) == 0
+    fa, fb, fc = files_of(a / "train"), files_of(b / "train"), files_of(c / "train")
+    assert len(fa) == 21 and fa == fb
+    plys = [n for n in fa if n.endswith(".ply")]
+    assert all(fa[n] != fc[n] for n in plys)
+
+
+def test_splits_never_share_seeds():
+    seeds = {s: {object_seed(0, s, i) for i in range(2000)} for s in SPLITS}
+    assert all(len(v) == 2000 for v in seeds.values())
+    assert not (seeds["train"] & seeds["val"]) and not (seeds["train"] & seeds["test"])
+    assert not (seeds["val"] & seeds["test"])
+    assert object_seed(5, "train", 3) == object_seed(5, "train", 3) != object_seed(6, "train", 3)
+
+
+def test_round_robin_balance_within_one():
+    counts = np.bincount([ALL_CLASSES.index(class_for_index(i, ALL_CLASSES)) for i in range(205)])
+    assert counts.max() - counts.min() <= 1
+
+
+def test_rejection_sampling_enforces_overlapping_constraints():
+    """Shrub densities overlap ([240,360] stems vs [200,300] twigs): unconstrained draws would
+    violate 'twigs.density < stems.density' often; accepted draws never do."""
+    spec = TABLE["shrubs"]
+    rng = np.random.default_rng(0)
+    draws, log_e = [], []
+    for _ in range(400):
+        values, n = sample_part_values(spec, ["stems", "twigs", "foliage"], rng)
+        draws.append(n)
+        log_e.append(math.log(values["stems"]["E"]))
+        assert values["twigs"]["density"] < values["stems"]["density"]
+        assert values["foliage"]["E"] < values["twigs"]["E"] < values["stems"]["E"]
+        assert check_object_labels(spec, values) == []
+    assert np.mean(draws) > 1.05  # some draws were rejected
+    # log-uniform E: mean of log E is the middle of the log range
+    lo, hi = spec.part("stems").E_pa
+    assert np.mean(log_e) == pytest.approx((math.log(lo) + math.log(hi)) / 2, abs=0.03)
+
+
+def test_constraint_parsing_and_unsatisfiable_table():
+    c = parse_constraint("pot.E > 10*trunk.E", "t")
+    assert (c.left_part, c.op, c.right_factor, c.right_part) == ("pot", ">", 10.0, "trunk")
+    assert c.holds({"pot": {"E": 2.1e7}, "trunk": {"E": 2e6}})
+    assert not c.holds({"pot": {"E": 1.9e7}, "trunk": {"E": 2e6}})
+    assert c.holds({"trunk": {"E": 2e6}})  # an absent optional part makes it vacuous
+    with pytest.raises(InputError):
+        parse_constraint("pot.E >> trunk", "t")
+    spec = TABLE["tree"]
+    impossible = ClassSpec(spec.name, spec.recipe, spec.parts, (parse_constraint("trunk.E < leaves.E", "t"),))
+    with pytest.raises(InputError, match="not satisfied"):
+        sample_part_values(impossible, ["trunk", "leaves"], np.random.default_rng(0), max_tries=50)
+
+
+def test_user_class_table_extends_without_code(tmp_path):
+    """A new class reusing a recipe with renamed parts, from a user's JSON file."""
+    table = {"classes": {"jelly_balls": {
+        "recipe": "sport_ball", "part_map": {"ball": "jelly"},
+        "parts": {"jelly": {"material": "jelly", "density": 1000, "E": 5e3, "nu": 0.45}},
+        "constraints": []}}}
+    path = tmp_path / "classes.json"
+    path.write_text(json.dumps(table))
+    out = tmp_path / "d"
+    assert main(["generate", str(out), "--count", "2", "--table", str(path), *SMALL]) == 0
+    cloud, meta = load_object(list_objects(out, "train")[0])
+    assert meta["class"] == "jelly_balls" and meta["parts"][0]["name"] == "jelly"
+    E = cloud.get_materials()[1]
+    assert 4e3 <= E.min() <= E.max() <= 6e3
+
+
+def test_bad_input_one_line_errors_and_no_partial_output(tmp_path, capsys):
+    out = tmp_path / "d"
+    assert main(["generate", str(out), "--count", "3", "--classes", "tree,unicorn", *SMALL]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "unicorn" in err and "\n" not in err
+    assert not (out / "train").exists()
+    assert main(["generate", str(out), "--count", "1", "--classes", "sand", *SMALL]) == 0
+    before = files_of(out / "train")
+    assert main(["generate", str(out), "--count", "1", "--classes", "sand", "--seed", "9", *SMALL]) == 1
+    assert "--force" in capsys.readouterr().err
+    assert files_of(out / "train") == before
+    assert main(["generate", str(out), "--count", "1", "--classes", "sand", "--seed", "9", "--force",
+                 *SMALL]) == 0
+    assert files_of(out / "train") != before
+    assert [p.name for p in out.iterdir()] == ["train"]  # no temporary directories left
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"classes": {"x": {"recipe": "sand_pile", "parts": {"s": {"material": "rock", '
+                   '"density": 1, "E": 1, "nu": 0.3}}}}}')
+    assert main(["generate", str(out / "x"), "--count", "1", "--table", str(bad), *SMALL]) == 1
+    assert "unknown material 'rock'" in capsys.readouterr().err
+
+
+def test_generator_needs_no_warp_rerun_or_optional_trimesh_extras(tmp_path):
+    """The training box has no warp/rerun and only plain trimesh: generate with those blocked."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "for m in ('warp', 'rerun', 'rtree', 'shapely', 'embreex', 'manifold3d', 'pyembree', 'matplotlib'):\n"
+        "    sys.modules[m] = None\n"
+        "from pixie_gs.dataset.generate import generate_split\n"
+        f"generate_split({str(tmp_path / 'd')!r}, 10, n_gaussians=400)\n"
+        "bad = [m for m in ('warp', 'rerun') if sys.modules.get(m) is not None]\n"
+        "assert not bad, bad\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert len(list_objects(tmp_path / "d", "train")) == 10
+
+
+def test_shipped_examples_are_unlabelled_and_small():
+    from pixie_gs.dataset.examples import EXAMPLES_DIR
+    from pixie_gs.splat import LABEL_ATTRIBUTES, read_splat
+
+    sizes = {}
+    for name in ("tree", "duck", "can", "sand", "snow"):
+        path = EXAMPLES_DIR / f"{name}.ply"
+        cloud = read_splat(path)
+        sizes[name] = len(cloud)
+        assert not any(cloud.has(a) for a in LABEL_ATTRIBUTES), name
+        record = json.loads((EXAMPLES_DIR / f"{name}.labels.json").read_text())
+        assert record["gaussians"] == len(cloud)
+        assert check_object_labels(TABLE[record["class"]], {p["name"]: p for p in record["parts"]}) == []
+    assert 20_000 <= sizes["tree"] <= 30_000 and max(v for k, v in sizes.items() if k != "tree") <= 15_000
+    assert sum(p.stat().st_size for p in EXAMPLES_DIR.iterdir()) < 6e6
+    tree = json.loads((EXAMPLES_DIR / "tree.labels.json").read_text())
+    assert [p["name"] for p in tree["parts"]] == ["pot", "trunk", "leaves"]  # a potted tree
