@@ -1,9 +1,12 @@
 """Choose the compute device for torch and Warp from one user-facing string."""
 from __future__ import annotations
 
+import sys
+
 from .errors import InputError
 
 DEVICE_CHOICES = ("auto", "cpu", "cuda")
+_warp_ready = False
 
 
 def resolve_torch_device(name: str = "auto") -> str:
@@ -19,12 +22,35 @@ def resolve_torch_device(name: str = "auto") -> str:
     return name
 
 
+def init_warp_quietly() -> None:
+    """Initialise Warp without its banner and without the native 'no CUDA driver' warning that it
+    prints on CPU-only machines (stderr is silenced at file-descriptor level for the init only)."""
+    import logging
+    import os
+
+    import warp as wp
+
+    global _warp_ready
+    if _warp_ready:
+        return
+    wp.config.log_level = logging.ERROR
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), 2)
+            wp.init()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+    _warp_ready = True
+
+
 def resolve_warp_device(name: str = "auto") -> str:
     """The Warp device string for `name` ('auto' picks CUDA when Warp finds a GPU)."""
     import warp as wp
 
-    wp.config.quiet = True
-    wp.init()
+    init_warp_quietly()
     has_cuda = wp.get_cuda_device_count() > 0
     if name == "auto":
         return "cuda:0" if has_cuda else "cpu"

@@ -222,6 +222,9 @@ def test_bad_input_one_line_errors_and_no_partial_output(tmp_path, capsys):
                    '"density": 1, "E": 1, "nu": 0.3}}}}}')
     assert main(["generate", str(out / "x"), "--count", "1", "--table", str(bad), *SMALL]) == 1
     assert "unknown material 'rock'" in capsys.readouterr().err
+    assert main(["generate", str(tmp_path / "e"), "--count", "1", "--preview", str(tmp_path / "no" / "p.png"),
+                 *SMALL]) == 1
+    assert "output directory does not exist" in capsys.readouterr().err and not (tmp_path / "e").exists()
 
 
 def test_generator_needs_no_warp_rerun_or_optional_trimesh_extras(tmp_path):

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.ArgumentParser:
@@ -39,8 +40,11 @@ def run(args: argparse.Namespace) -> int:
     from ..progress import stage
 
     classes = [c.strip() for c in args.classes.split(",") if c.strip()] if args.classes else None
-    if args.preview is not None and not args.preview.lower().endswith(".png"):
-        raise InputError("--preview must name a .png file", args.preview)
+    if args.preview is not None:
+        if not args.preview.lower().endswith(".png"):
+            raise InputError("--preview must name a .png file", args.preview)
+        if not Path(args.preview).resolve().parent.is_dir():
+            raise InputError("--preview: output directory does not exist", Path(args.preview).parent)
     stage(f"generating {args.count} {args.split} objects into {args.out_dir} ({args.workers} workers)")
     split_dir = generate_split(args.out_dir, args.count, classes=classes, seed=args.seed, split=args.split,
                                workers=args.workers, n_gaussians=args.gaussians, table_path=args.table,

@@ -164,10 +164,12 @@ def plot_gap(path: Path, diagnosis: Diagnosis, after: np.ndarray, regions: list[
     ax = axes[2]
     ranking = diagnosis.rounds[0].ranking[:8] if diagnosis.rounds else []
     scores = [max(s.delta_bic, 0.0) for s in ranking]
-    colors = ["tab:green" if s.significant else "tab:grey" for s in ranking]
+    chosen = diagnosis.rounds[0].chosen
+    colors = ["tab:green" if chosen is not None and s is chosen else "yellowgreen" if s.significant else "tab:grey"
+              for s in ranking]
     ax.barh(np.arange(len(ranking))[::-1], scores, color=colors)
     ax.set_yticks(np.arange(len(ranking))[::-1], [s.label for s in ranking], fontsize=8)
-    ax.set_xlabel("ΔBIC vs model as given (green: significant)")
+    ax.set_xlabel("ΔBIC vs model as given (green: chosen; light: significant alone)")
     ax.set_title("which effect (round 1)")
     if scores and max(scores) > 100:
         ax.set_xscale("symlog")

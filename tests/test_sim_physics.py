@@ -1,0 +1,263 @@
+"""Physics of the Warp MPM (CPU) against known answers: kinematics, elastic waves, Poisson
+ratio, contact restitution, plastic set, fixed/stationary parts, forces, covariances, guard.
+
+Grids are coarse and particle counts small so the file runs in a few minutes on 2 cores.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pixie_gs.errors import ComputationError, InputError
+from pixie_gs.materials import JELLY, METAL, SAND, STATIONARY
+from pixie_gs.sim import MPMSolver, Particles, Scene, advect_covariances
+
+G = 9.81  # m/s²
+
+
+def make_scene(**keys: object) -> Scene:
+    return Scene.from_dict(keys)
+
+
+def join(*parts: Particles) -> Particles:
+    """One Particles from several (per-field concatenation)."""
+    fields = ("x", "v", "volume", "E", "nu", "density", "material_id", "yield_stress", "fixed", "part_id")
+    return Particles(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in fields})
+
+
+def small_block(scene: Scene, lo=(-0.03, -0.03, 0.0), hi=(0.03, 0.03, 0.06), **attrs: object) -> Particles:
+    attrs = {"E": 1e4, "nu": 0.3, "density": 500.0, "material_id": JELLY, **attrs}
+    return Particles.lattice(lo, hi, scene.dx / 2, **attrs)
+
+
+# ---------------------------------------------------------------------------------------- kinematics
+def test_free_fall_without_ground_matches_half_g_t_squared():
+    scene = make_scene(domain={"size_m": 1.0, "grid": 32, "origin": [-0.5, -0.5, -0.7]},
+                       ground={"enabled": False}, solver={"velocity_cfl": 0.1})
+    p = small_block(scene, lo=(-0.06, -0.06, 0.1), hi=(0.06, 0.06, 0.22))
+    sim = MPMSolver(p, scene)
+    for _ in range(10):
+        sim.step_frame(1 / 30)
+    drop = p.x[:, 2].mean() - sim.positions()[:, 2].mean()
+    assert drop == pytest.approx(0.5 * G * sim.time_s ** 2, rel=0.01)
+    # a free body stays undeformed: every particle moved by the same amount
+    assert np.ptp(p.x[:, 2] - sim.positions()[:, 2]) < 1e-4
+
+
+def test_substeps_follow_the_cfl_of_the_stiffest_moving_material():
+    scene = make_scene(domain={"size_m": 1.0, "grid": 32, "origin": [-0.5, -0.5, -0.5]}, ground={"enabled": False},
+                       gravity=[0, 0, 0])
+    soft = small_block(scene, E=1e4)
+    stiff = small_block(scene, lo=(0.1, 0.1, 0.1), hi=(0.15, 0.15, 0.15), E=1e6)
+    rigid = small_block(scene, lo=(-0.2, -0.2, -0.2), hi=(-0.15, -0.15, -0.15), E=1e10, material_id=STATIONARY)
+    sim = MPMSolver(join(soft, stiff, rigid), scene)
+    c = np.sqrt(1e6 * 0.7 / (500.0 * 1.3 * 0.4))  # P-wave speed of the stiff block (m/s)
+    assert sim.dt == pytest.approx(scene.solver.cfl * scene.dx / c, rel=1e-5)  # stationary part ignored
+    assert sim.substeps_for(0.01) == int(np.ceil(0.01 / sim.dt))
+
+
+# ---------------------------------------------------------------------------------------- elasticity
+def test_bar_longitudinal_wave_speed_is_sqrt_E_over_rho():
+    """Free–free bar, first longitudinal mode: period 2L/c with c = √(E/ρ)."""
+    scene = make_scene(domain={"size_m": [0.7, 0.2, 0.2], "grid": 56, "origin": [-0.1, -0.1, -0.1]},
+                       ground={"enabled": False}, gravity=[0, 0, 0])
+    dx, length, E, rho = scene.dx, 0.5, 1e5, 1000.0
+    t = 2 * dx
+    p = Particles.lattice((0, -t / 2, -t / 2), (length, t / 2, t / 2), dx / 2, E=E, nu=0.3, density=rho,
+                          material_id=JELLY)
+    p.v[:, 0] = 0.05 * np.cos(np.pi * p.x[:, 0] / length)
+    left, right = p.x[:, 0] < dx, p.x[:, 0] > length - dx
+    sim = MPMSolver(p, scene)
+    period = 2 * length / np.sqrt(E / rho)
+    times, stretch = [0.0], [0.0]
+    for _ in range(100):
+        sim.step_frame(period / 40)
+        x = sim.positions()
+        times.append(sim.time_s)
+        stretch.append(x[right, 0].mean() - x[left, 0].mean() - (p.x[right, 0].mean() - p.x[left, 0].mean()))
+    times, stretch = np.array(times), np.array(stretch)
+    i = np.nonzero(stretch[1:-1] * stretch[2:] < 0)[0] + 1
+    crossings = times[i] - stretch[i] * (times[i + 1] - times[i]) / (stretch[i + 1] - stretch[i])
+    assert len(crossings) >= 3
+    measured_c = 2 * length / (2 * np.diff(crossings).mean())
+    assert measured_c == pytest.approx(np.sqrt(E / rho), rel=0.05)
+
+
+def test_uniaxial_stress_lateral_strain_ratio_is_poisson_ratio():
+    """A block on a frictionless floor under its weight is in uniaxial stress: ε_lat = −ν ε_axial,
+    and its mean axial strain is −ρ g h / (2E)."""
+    nu, E, rho, w, h = 0.3, 1e5, 1000.0, 0.06, 0.12
+    scene = make_scene(domain={"size_m": [0.2, 0.2, 0.25], "grid": 25}, ground={"friction": 0.0}, damping=100.0)
+    p = Particles.lattice((-w / 2, -w / 2, 0), (w / 2, w / 2, h), scene.dx / 2, E=E, nu=nu, density=rho,
+                          material_id=JELLY)
+    sim = MPMSolver(p, scene)
+    for _ in range(25):
+        sim.step_frame(0.02)
+    X = p.x.astype(np.float64)
+    u = sim.positions().astype(np.float64) - X
+    fit = np.linalg.lstsq(np.c_[X - X.mean(0), np.ones(len(X))], u, rcond=None)[0]
+    strain = fit[:3].T  # mean displacement gradient
+    lateral = 0.5 * (strain[0, 0] + strain[1, 1])
+    assert -lateral / strain[2, 2] == pytest.approx(nu, rel=0.05)
+    assert strain[2, 2] == pytest.approx(-rho * G * h / (2 * E), rel=0.05)
+
+
+def test_elastic_ball_bounce_keeps_most_energy():
+    scene = make_scene(domain={"size_m": [0.4, 0.4, 0.6], "grid": 30}, ground={"friction": 0.0})
+    r, zc = 0.1, 0.35
+    p = Particles.lattice((-r, -r, zc - r), (r, r, zc + r), scene.dx / 2,
+                          inside=lambda x: np.linalg.norm(x - [0, 0, zc], axis=1) < r,
+                          E=3e4, nu=0.4, density=100.0, material_id=JELLY)
+    m = p.mass.astype(np.float64)
+
+    def energy(sim: MPMSolver) -> float:  # kinetic + potential above the resting height (J)
+        x, v = sim.positions().astype(np.float64), sim.velocities().astype(np.float64)
+        return float((m * (0.5 * (v ** 2).sum(1) + G * (x[:, 2] - r))).sum())
+
+    sim = MPMSolver(p, scene)
+    e0 = energy(sim)
+    after, lowest = [], zc
+    for _ in range(50):
+        sim.step_frame(0.01)
+        lowest = min(lowest, float(sim.positions()[:, 2].mean()))
+        if sim.velocities()[:, 2].mean() > 0.3:  # rising again after the contact
+            after.append(energy(sim))
+    assert lowest < r + 0.01  # it did reach the ground
+    assert after, "the ball never bounced"
+    assert 0.8 * e0 <= max(after) <= 1.01 * e0
+
+
+# ---------------------------------------------------------------------------------------- plasticity
+def test_metal_keeps_permanent_set_jelly_recovers_stationary_never_moves():
+    """Columns squeezed by a temporary downward load: von Mises metal (and jelly given a yield
+    stress) stay shorter after unloading, plain jelly returns to its elastic height; stationary
+    and fixed particles in the air do not move at all."""
+    scene = make_scene(domain={"size_m": [0.3, 0.12, 0.16], "grid": 30}, ground={"friction": 0.5}, damping=30.0,
+                       wind=[{"acceleration": [0, 0, -20.0], "start_s": 0.0, "end_s": 0.12}])
+    w, h, E, rho, dx = 0.04, 0.08, 1e5, 1000.0, scene.dx
+    columns = [Particles.lattice((xc - w / 2, -w / 2, 0), (xc + w / 2, w / 2, h), dx / 2, E=E, nu=0.3,
+                                 density=rho, material_id=mat, yield_stress=ys)
+               for xc, mat, ys in ((-0.08, METAL, 1000.0), (0.0, JELLY, np.inf), (0.08, JELLY, 1000.0))]
+    stationary = Particles.lattice((-0.02, 0.035, 0.1), (0.02, 0.05, 0.12), dx / 2, E=E, nu=0.3, density=rho,
+                                   material_id=STATIONARY)
+    held = Particles.lattice((0.06, 0.035, 0.1), (0.1, 0.05, 0.12), dx / 2, E=E, nu=0.3, density=rho,
+                             material_id=JELLY, fixed=True)
+    p = join(*columns, stationary, held)
+    bounds = np.cumsum([0] + [len(c) for c in columns])
+    sim = MPMSolver(p, scene)
+    for _ in range(15):
+        sim.step_frame(0.02)
+    x = sim.positions()
+
+    def height_change(k: int) -> float:
+        z0, z = p.x[bounds[k]:bounds[k + 1], 2], x[bounds[k]:bounds[k + 1], 2]
+        top, bottom = z0 > z0.max() - 1e-6, z0 < z0.min() + 1e-6
+        return float((z[top].mean() - z[bottom].mean()) / (z0.max() - z0.min()) - 1.0)
+
+    elastic = -rho * G * h / (2 * E)  # strain under its own weight after unloading
+    metal, jelly, yielding_jelly = (height_change(k) for k in range(3))
+    assert abs(jelly - elastic) < 0.004
+    assert metal < elastic - 0.05
+    assert yielding_jelly == pytest.approx(metal, abs=0.01)
+    assert np.array_equal(x[bounds[3]:], p.x[bounds[3]:])  # stationary and fixed: bit-identical
+    assert np.array_equal(sim.velocities()[bounds[3]:], np.zeros_like(p.x[bounds[3]:]))
+
+
+# ---------------------------------------------------------------------------------------- forces
+def free_block_sim(**scene_keys: object) -> tuple[MPMSolver, Particles]:
+    keys = {"domain": {"size_m": 1.0, "grid": 20, "origin": [-0.5, -0.5, -0.5]}, "ground": {"enabled": False},
+            "gravity": [0, 0, 0], **scene_keys}
+    scene = make_scene(**keys)
+    p = small_block(scene, lo=(-0.1, -0.1, -0.1), hi=(0.1, 0.1, 0.1), E=1e5)
+    return MPMSolver(p, scene), p
+
+
+def test_viscous_damping_and_quadratic_air_drag_follow_their_laws():
+    sim, p = free_block_sim(damping=3.0)
+    sim.v.assign(np.tile([0.5, 0, 0], (len(p), 1)).astype(np.float32))
+    for _ in range(5):
+        sim.step_frame(0.02)
+    assert sim.velocities()[:, 0].mean() == pytest.approx(0.5 * np.exp(-3.0 * 0.1), rel=0.01)
+
+    sim, p = free_block_sim(air_drag=4.0)
+    sim.v.assign(np.tile([0.5, 0, 0], (len(p), 1)).astype(np.float32))
+    for _ in range(5):
+        sim.step_frame(0.02)
+    assert sim.velocities()[:, 0].mean() == pytest.approx(0.5 / (1 + 4.0 * 0.5 * 0.1), rel=0.01)
+
+
+def test_wind_window_region_and_impulse():
+    wind = {"acceleration": [2.0, 0, 0], "start_s": 0.04, "end_s": 0.1}
+    impulse = {"time_s": 0.05, "velocity_change": [0, 0.3, 0], "region": {"min": [-1, -1, 0.0], "max": [1, 1, 1]}}
+    sim, p = free_block_sim(wind=[wind], impulses=[impulse])
+    for _ in range(8):
+        sim.step_frame(0.02)
+    v = sim.velocities()
+    assert v[:, 0].mean() == pytest.approx(2.0 * 0.06, rel=0.02)  # a · (end − start)
+    upper = p.x[:, 2] >= 0.0
+    assert v[upper, 1].mean() > 0.1 and abs(v[~upper, 1].mean()) < v[upper, 1].mean()
+    # total y-momentum given = Δv × mass of the particles inside the region when it fired
+    momentum = (p.mass[:, None] * v).sum(0)
+    assert momentum[1] == pytest.approx(0.3 * p.mass[upper].sum(), rel=0.01)
+
+    gusty = dict(wind, start_s=0.0, end_s=None, gust_amplitude=1.0, gust_frequency_hz=5.0)
+    sim, p = free_block_sim(wind=[gusty])
+    for _ in range(5):
+        sim.step_frame(0.02)  # over one gust period the sine averages out
+    assert sim.velocities()[:, 0].mean() == pytest.approx(2.0 * 0.1, rel=0.03)
+
+    outside = dict(wind, start_s=0.0, region={"min": [0.3, 0.3, 0.3], "max": [0.4, 0.4, 0.4]})
+    sim, p = free_block_sim(wind=[outside])
+    sim.step_frame(0.05)
+    assert np.abs(sim.velocities()).max() < 1e-6
+
+
+def test_ground_coulomb_friction_stops_a_sliding_block():
+    """A block sliding at v0 decelerates at μg and stops after v0² / (2μg)."""
+    mu, v0 = 0.4, 1.0
+    scene = make_scene(domain={"size_m": [0.8, 0.2, 0.2], "grid": 40, "origin": [-0.2, -0.1, -0.03]},
+                       ground={"friction": mu})
+    p = small_block(scene, lo=(-0.04, -0.02, 0.0), hi=(0.04, 0.02, 0.04), E=1e5, v=[v0, 0, 0])
+    sim = MPMSolver(p, scene)
+    for _ in range(20):
+        sim.step_frame(0.02)
+    travel = sim.positions()[:, 0].mean() - p.x[:, 0].mean()
+    assert np.abs(sim.velocities()).max() < 0.02
+    assert travel == pytest.approx(v0 ** 2 / (2 * mu * G), rel=0.1)
+
+
+# ---------------------------------------------------------------------------------------- covariance, guard
+def test_covariance_under_homogeneous_F_is_exactly_F_sigma_FT():
+    F = np.array([[2.0, 1.0, 0.0], [0.0, 1.0, 0.5], [0.0, 0.0, 3.0]])
+    sigma = np.array([[4.0, 1.0, 0.0], [1.0, 2.0, 0.0], [0.0, 0.0, 1.0]])
+    out = advect_covariances(np.stack([sigma, np.eye(3)]), np.stack([F, F]))
+    assert np.array_equal(out[0], (F @ sigma @ F.T).astype(np.float32))  # small integers: exact
+    assert np.array_equal(out[1], (F @ F.T).astype(np.float32))
+
+    # through the solver: a uniform velocity gradient stretches a stress-free fluid-like free body,
+    # and the covariances follow the solver's own F
+    sim, p = free_block_sim()
+    L = np.array([[0.5, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    sim.v.assign((p.x @ L.T).astype(np.float32))
+    sim.step_frame(0.01)
+    F_sim = sim.deformation_gradients()
+    cov = advect_covariances(np.tile(sigma, (len(p), 1, 1)), F_sim)
+    assert np.allclose(cov, F_sim @ sigma @ np.transpose(F_sim, (0, 2, 1)), rtol=1e-5, atol=1e-6)
+    centre = np.linalg.norm(p.x, axis=1) < 0.05
+    assert F_sim[centre, 0, 0].mean() == pytest.approx(1.0 + 0.5 * 0.01, rel=2e-3)
+
+
+def test_explosion_guard_names_frame_and_material():
+    scene = make_scene(domain={"size_m": 0.6, "grid": 20}, solver={"max_substeps_per_frame": 1})
+    p = small_block(scene, lo=(-0.05, -0.05, 0.05), hi=(0.05, 0.05, 0.15), material_id=METAL, E=1e5,
+                    v=[0, 0, 200.0])
+    sim = MPMSolver(p, scene)
+    with pytest.raises(ComputationError, match=r"diverged at frame 1 \(t=0\.01 s\): material 'metal'"):
+        sim.step_frame(0.01)
+
+
+def test_particles_outside_the_domain_are_an_input_error():
+    scene = make_scene(domain={"size_m": 0.5, "grid": 16})
+    p = small_block(scene, lo=(0.2, 0.2, 0.1), hi=(0.3, 0.3, 0.2))
+    with pytest.raises(InputError, match="outside the simulation domain"):
+        MPMSolver(p, scene)
