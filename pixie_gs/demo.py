@@ -1,20 +1,21 @@
 """`pixie demo`: the shipped potted tree, annotated by the shipped checkpoint, swaying in wind.
 
-One end-to-end run of the product on a small CPU budget (< 2 minutes on a 2-core laptop CPU):
+One end-to-end run of the product on a small CPU budget (< 2 minutes on a 2-core CPU):
 
-1. read the example splat pixie_gs/data/examples/tree.ply (20k Gaussians, z up);
-2. `annotate_cloud` with the shipped checkpoint → DIR/tree_annotated.ply (every Gaussian);
-3. keep at most `particles_per_cell` Gaussians per simulation grid cell (spatially even, so thin
-   trunks and branches stay connected on the grid) → the simulated Gaussians;
-4. simulate `DEMO_SCENE` (a 0.5 m tree, wind gust along +x, pot anchored) → DIR/frames/frame_*.ply
-   and DIR/frames/tracks.npz, streamed to DIR/demo.rrd (RGB | material | log E views + time slider);
-5. point-splat pictures a person can open without rerun: DIR/demo.gif and DIR/demo_strip.png.
+1. read the example splat pixie_gs/data/examples/tree.ply (20k Gaussians, z up) and predict its
+   materials with `annotate_cloud` → DIR/tree_annotated.ply (every Gaussian);
+2. `run_scenario` (also used by examples/): keep at most `particles_per_cell` Gaussians per
+   simulation grid cell (spatially even, so a thin trunk stays connected on the grid while dense
+   foliage is thinned), simulate `DEMO_SCENE` (a 0.5 m tree, a gust along +x for 0.6 s, base
+   anchored) → DIR/frames/frame_*.ply + tracks.npz, streamed to DIR/demo.rrd (RGB | material |
+   log E views side by side, time slider);
+3. point-splat pictures a person can open without rerun: DIR/demo.gif and DIR/demo_strip.png.
 
 Why gravity is off in the demo scene: the Pixie labels give a tree trunk an effective Young's
 modulus of ~2 MPa (visual plausibility, not real wood); such a trunk cannot carry a leafy crown
-under full gravity at any size the grid resolves, and the crown would slump instead of sway.
-The wind alone then shows what the predicted stiffness field does: soft leaves lag and flutter,
-the stiffer trunk bends, the stationary pot stays put.
+under full gravity at any size the grid resolves, and the crown slumps instead of swaying. The
+wind alone shows what the predicted stiffness field does: the crown and trunk bend downwind and
+swing back, the stationary pot stays put.
 """
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ from .splat import SplatCloud
 
 EXAMPLE_NAMES = ("tree", "duck", "can", "sand", "snow")
 
-# The demo's world (keys as in docs/scene.md). Wind blows along +x for 0.8 s with a gust, then
+# The demo's world (keys as in docs/scene.md). Wind blows along +x for 0.6 s with a gust, then
 # stops, so the tree bends downwind and swings back. The pot's base (lowest 3 cm) is anchored;
 # the pot itself is held by its predicted `stationary` material.
 DEMO_SCENE: dict[str, Any] = {
@@ -42,7 +43,7 @@ DEMO_SCENE: dict[str, Any] = {
     "gravity": [0.0, 0.0, 0.0],
     "ground": {"enabled": True, "height_m": 0.0, "friction": 0.8},
     "damping": 0.5,
-    "wind": [{"acceleration": [0.6, 0.0, 0.0], "start_s": 0.0, "end_s": 0.8,
+    "wind": [{"acceleration": [0.4, 0.0, 0.0], "start_s": 0.0, "end_s": 0.6,
               "gust_amplitude": 0.3, "gust_frequency_hz": 1.25}],
     "fixed": [{"region": {"min": [-1.0, -1.0, -0.1], "max": [1.0, 1.0, 0.03]}}],
     # caps the substeps a frame may take: parts stiffer than this allows are softened (and
@@ -55,14 +56,26 @@ DEMO_SCENE: dict[str, Any] = {
 class DemoSettings:
     """Sizes that keep the demo under 2 minutes on a 2-core CPU (frames at `fps` frames/s)."""
 
-    frames: int = 30
+    frames: int = 45
     fps: float = 15.0
     particles_per_cell: int = 6
     seed: int = 0
     device: str = "auto"
     checkpoint: str | Path | None = None  # None = the shipped checkpoint
-    image_size_px: int = 280
+    image_size_px: int = 240
     strip_frames: int = 6
+
+
+@dataclass
+class ScenarioResult:
+    """What `run_scenario` wrote and computed. Positions of the simulated Gaussians: `traj.x`
+    (T,N,3) in the input splat's coordinates, `x_world` (T,N,3) in world metres (z up)."""
+
+    cloud: SplatCloud
+    traj: object  # sim.run.Trajectory
+    x_world: np.ndarray
+    files: dict[str, Path]
+    seconds: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -75,7 +88,7 @@ class DemoResult:
     simulated: int
     seconds: dict[str, float] = field(default_factory=dict)
     top_displacement: np.ndarray | None = None  # (T,3) mean displacement of the top 10 % of the tree
-    anchored_max_displacement: float = 0.0  # largest motion of any fixed/stationary Gaussian
+    anchored_max_displacement: float = 0.0  # largest motion of any anchored (fixed/stationary) Gaussian
     material_counts: dict[str, int] = field(default_factory=dict)
 
 
@@ -113,28 +126,33 @@ def subsample_per_cell(cloud: SplatCloud, scene, per_cell: int, seed: int = 0) -
     return np.sort(order[rank < per_cell])
 
 
-def render_clip(x_world: np.ndarray, colours: list[np.ndarray], labels: list[str], times_s: np.ndarray,
-                size_px: int, azimuth_deg: float = -90.0, elevation_deg: float = 12.0) -> list[np.ndarray]:
-    """One picture per frame of positions x_world (T,N,3) (z up): the views coloured by each of
-    `colours` side by side, fitted to the bounds of the whole run so the camera stays still."""
-    from .render import contact_sheet, render_points
+def render_views(x_world: np.ndarray, colours: list[np.ndarray], size_px: int, azimuth_deg: float = -90.0,
+                 elevation_deg: float = 12.0) -> list[list[np.ndarray]]:
+    """Pictures [frame][view] of positions x_world (T,N,3) (z up), one view per colouring in
+    `colours`, all fitted to the bounds of the whole run so the camera stays still."""
+    from .render import render_points
 
     flat = x_world.reshape(-1, 3)
     bounds = (flat.min(axis=0), flat.max(axis=0))
-    pictures = []
-    for i in range(len(x_world)):
-        views = [render_points(x_world[i], c, size=(size_px, size_px), azimuth_deg=azimuth_deg,
-                               elevation_deg=elevation_deg, up="z", bounds=bounds) for c in colours]
-        pictures.append(contact_sheet(views, [f"{lab}  t = {times_s[i]:.2f} s" for lab in labels], len(views)))
-    return pictures
+    return [[render_points(x, c, size=(size_px, size_px), azimuth_deg=azimuth_deg, elevation_deg=elevation_deg,
+                           up="z", bounds=bounds) for c in colours] for x in x_world]
 
 
-def strip(pictures: list[np.ndarray], times_s: np.ndarray, count: int) -> np.ndarray:
-    """`count` evenly spaced pictures of a clip in one row (a PNG summary of the animation)."""
+def animation_frames(views: list[list[np.ndarray]], labels: list[str], times_s: np.ndarray) -> list[np.ndarray]:
+    """GIF frames: each frame's views side by side, labelled with the view name and time (s)."""
     from .render import contact_sheet
 
-    pick = np.unique(np.linspace(0, len(pictures) - 1, min(count, len(pictures))).round().astype(int))
-    return contact_sheet([pictures[i] for i in pick], [f"frame {i}" for i in pick], len(pick))
+    return [contact_sheet(v, [f"{lab}  t = {t:.2f} s" for lab in labels], len(v)) for v, t in zip(views, times_s)]
+
+
+def strip(views: list[list[np.ndarray]], labels: list[str], times_s: np.ndarray, count: int) -> np.ndarray:
+    """`count` evenly spaced frames in columns, one row per view (a PNG summary of the animation)."""
+    from .render import contact_sheet
+
+    pick = np.unique(np.linspace(0, len(views) - 1, min(count, len(views))).round().astype(int))
+    images = [views[i][k] for k in range(len(labels)) for i in pick]
+    names = [f"{labels[k]}  t = {times_s[i]:.2f} s" for k in range(len(labels)) for i in pick]
+    return contact_sheet(images, names, len(pick))
 
 
 def prepare_out_dir(out_dir: str | Path) -> Path:
@@ -148,14 +166,78 @@ def prepare_out_dir(out_dir: str | Path) -> Path:
     return out
 
 
-def run_demo(out_dir: str | Path = "pixie_demo", settings: DemoSettings | None = None) -> DemoResult:
-    """Annotate, simulate and picture the shipped potted tree; returns what was written."""
+def material_summary(cloud: SplatCloud) -> dict[str, int]:
+    """Gaussians per predicted material name, e.g. {"jelly": 17512, "stationary": 2946}."""
+    from .materials import MATERIAL_NAMES
+
+    mid = cloud.get("material_id")
+    return {MATERIAL_NAMES.get(int(m), str(int(m))): int((mid == m).sum()) for m in np.unique(mid)}
+
+
+def run_scenario(cloud: SplatCloud, scene, out_dir: Path, frames: int, fps: float, *, device: str = "auto",
+                 particles_per_cell: int | None = 6, seed: int = 0, fill: bool = False, app_id: str = "pixie",
+                 image_size_px: int = 240, strip_frames: int = 6, azimuth_deg: float = -90.0,
+                 elevation_deg: float = 12.0, gif: bool = True) -> ScenarioResult:
+    """Simulate an annotated `cloud` in `scene` and write, under `out_dir`: frames/frame_*.ply and
+    frames/tracks.npz, run.rrd (RGB | material | log E views with a time slider), strip.png (a row
+    per view, evenly spaced frames) and, with `gif`, run.gif. Used by the demo and examples/.
+
+    particles_per_cell: simulate at most this many Gaussians per grid cell (None = all).
+    """
     from . import viz
-    from .annotate import annotate_cloud
-    from .materials import MATERIAL_NAMES, STATIONARY
     from .render import save_gif, save_png
     from .sim.frames import FrameWriter
     from .sim.run import FrameState, simulate
+
+    files = {"frames": out_dir / "frames", "rrd": out_dir / "run.rrd", "strip": out_dir / "strip.png"}
+    if gif:
+        files["gif"] = out_dir / "run.gif"
+    seconds: dict[str, float] = {}
+    clock = time.perf_counter()
+    if particles_per_cell is not None:
+        full = len(cloud)
+        cloud = cloud.subset(subsample_per_cell(cloud, scene, particles_per_cell, seed))
+        stage(f"simulating {len(cloud)} of {full} Gaussians (≤ {particles_per_cell} per "
+              f"{scene.dx * 100:.3g} cm cell) for {(frames - 1) / fps:.2f} s")
+    writer = FrameWriter(files["frames"], cloud, force=True)
+    rec = viz.open_recording(app_id, rrd_path=files["rrd"])
+    x_world = np.empty((frames, len(cloud), 3), np.float32)
+    radii = viz.splat_radii(cloud, scale=scene.object.size_m / _longest_side(cloud))
+
+    def on_frame(state: FrameState) -> None:
+        writer.write(state)
+        x_world[state.index] = state.x_world
+        if state.index == 0:
+            _log_world(rec)
+            viz.log_material_views(rec, cloud, time_s=0.0, means=state.x_world, radii=radii)
+        else:
+            viz.log_positions(rec, viz.MATERIAL_VIEW_ENTITIES, state.x_world, time_s=state.time_s)
+
+    try:
+        traj = simulate(cloud, scene, frames, fps, device=device, on_frame=on_frame, fill=fill)
+        writer.finish(traj.t, traj.x)
+        seconds["simulate"] = time.perf_counter() - clock
+        viz.send_layout(rec, fps=fps, shared=["world"])
+        viz.close_recording(rec)
+    except BaseException:
+        writer.abort()
+        viz.discard_recording(rec)
+        raise
+    clock = time.perf_counter()
+    colours = [cloud.rgb(), viz.material_colors(cloud.get("material_id")), viz.log_e_colors(cloud.get("E"))]
+    labels = ["colour", "material", "log10 E"]
+    views = render_views(x_world, colours, image_size_px, azimuth_deg, elevation_deg)
+    if gif:
+        save_gif(animation_frames(views, labels, traj.t), files["gif"], fps=fps)
+    save_png(strip(views, labels, traj.t, strip_frames), files["strip"])
+    seconds["render"] = time.perf_counter() - clock
+    return ScenarioResult(cloud=cloud, traj=traj, x_world=x_world, files=files, seconds=seconds)
+
+
+def run_demo(out_dir: str | Path = "pixie_demo", settings: DemoSettings | None = None) -> DemoResult:
+    """Annotate, simulate and picture the shipped potted tree; returns what was written."""
+    from .annotate import annotate_cloud
+    from .materials import STATIONARY
     from .sim.scene import Scene
     from .splat import read_splat
 
@@ -163,81 +245,45 @@ def run_demo(out_dir: str | Path = "pixie_demo", settings: DemoSettings | None =
     if s.frames < 2:
         raise InputError(f"--frames must be ≥ 2 for an animation, got {s.frames}")
     out = prepare_out_dir(out_dir)
-    files = {"annotated": out / "tree_annotated.ply", "frames": out / "frames", "rrd": out / "demo.rrd",
-             "gif": out / "demo.gif", "strip": out / "demo_strip.png", "scene": out / "scene.json"}
-    seconds: dict[str, float] = {}
+    files = {"annotated": out / "tree_annotated.ply", "scene": out / "scene.json"}
     clock = time.perf_counter()
 
-    def lap(name: str) -> None:
-        nonlocal clock
-        now = time.perf_counter()
-        seconds[name] = now - clock
-        clock = now
-
     source = example_path("tree")
-    stage(f"1/4 reading the example splat {source.name} and predicting its materials")
+    stage(f"1/3 reading the example splat {source.name} and predicting its materials")
     tree = read_splat(source)
     annotated = annotate_cloud(tree, checkpoint=s.checkpoint, device=s.device, up="z")
     annotated.write(files["annotated"])
-    mid = annotated.get("material_id")
-    counts = {MATERIAL_NAMES.get(int(m), str(int(m))): int((mid == m).sum()) for m in np.unique(mid)}
-    stage("   materials: " + ", ".join(f"{k} {v}" for k, v in counts.items()) + f" -> {files['annotated']}")
-    lap("annotate")
+    counts = material_summary(annotated)
+    stage("    materials: " + ", ".join(f"{k} {v}" for k, v in counts.items()) + f" -> {files['annotated']}")
+    seconds = {"annotate": time.perf_counter() - clock}
 
     scene = Scene.from_dict(DEMO_SCENE, source="demo scene")
     scene.to_json(files["scene"])
-    keep = subsample_per_cell(annotated, scene, s.particles_per_cell, s.seed)
-    cloud = annotated.subset(keep)
-    stage(f"2/4 simulating {len(cloud)} of {len(annotated)} Gaussians (≤ {s.particles_per_cell} per "
-          f"{scene.dx * 100:.3g} cm cell) in wind for {(s.frames - 1) / s.fps:.2f} s")
-    writer = FrameWriter(files["frames"], cloud, force=True)
-    rec = viz.open_recording("pixie-demo", rrd_path=files["rrd"])
-    x_world = np.empty((s.frames, len(cloud), 3), np.float32)
+    stage("2/3 simulating the tree in a gust of wind (pot anchored)")
+    result = run_scenario(annotated, scene, out, s.frames, s.fps, device=s.device,
+                          particles_per_cell=s.particles_per_cell, seed=s.seed, app_id="pixie-demo",
+                          image_size_px=s.image_size_px, strip_frames=s.strip_frames)
+    stage("3/3 wrote frames, rerun recording, GIF and picture strip")
+    renames = {"rrd": "demo.rrd", "gif": "demo.gif", "strip": "demo_strip.png"}
+    for key, path in result.files.items():
+        files[key] = path.replace(out / renames[key]) if key in renames else path
+    seconds.update(result.seconds)
 
-    def on_frame(state: FrameState) -> None:
-        writer.write(state)
-        x_world[state.index] = state.x_world
-        if state.index == 0:
-            _log_world(rec)
-            viz.log_material_views(rec, cloud, time_s=0.0, means=state.x_world,
-                                   radii=viz.splat_radii(cloud, scale=scene.object.size_m / _height(cloud)))
-        else:
-            viz.log_positions(rec, viz.MATERIAL_VIEW_ENTITIES, state.x_world, time_s=state.time_s)
-
-    try:
-        traj = simulate(cloud, scene, s.frames, s.fps, device=s.device, on_frame=on_frame)
-        writer.finish(traj.t, traj.x)
-        lap("simulate")
-        stage(f"3/4 writing the rerun recording {files['rrd']}")
-        viz.send_layout(rec, fps=s.fps, shared=["world"])
-        viz.close_recording(rec)
-    except BaseException:
-        writer.abort()
-        viz.discard_recording(rec)
-        raise
-    lap("record")
-
-    stage(f"4/4 rendering {files['gif'].name} and {files['strip'].name}")
-    colours = [cloud.rgb(), viz.material_colors(cloud.get("material_id"))]
-    clip = render_clip(x_world, colours, ["colour", "material"], traj.t, s.image_size_px)
-    save_gif(clip, files["gif"], fps=s.fps)
-    save_png(strip(clip, traj.t, s.strip_frames), files["strip"])
-    lap("render")
-
+    cloud, traj = result.cloud, result.traj
     z = cloud.means[:, 2]
     top = z >= np.quantile(z, 0.9)
-    anchored = (cloud.get("material_id") == STATIONARY) | (z - z.min() <= 0.03 / scene.object.size_m * _height(cloud))
+    base = z - z.min() <= 0.03 / scene.object.size_m * _longest_side(cloud)
+    anchored = (cloud.get("material_id") == STATIONARY) | base
     return DemoResult(
         out_dir=out, files=files, gaussians=len(annotated), simulated=len(cloud), seconds=seconds,
         top_displacement=(traj.x[:, top] - traj.x[0, top]).mean(axis=1),
-        anchored_max_displacement=float(np.abs(traj.x[:, anchored] - traj.x[0, anchored]).max())
-        if anchored.any() else 0.0,
+        anchored_max_displacement=float(np.abs(traj.x[:, anchored] - traj.x[0, anchored]).max()),
         material_counts=counts,
     )
 
 
-def _height(cloud: SplatCloud) -> float:
-    """Extent (input units) of the cloud's longest side (the tree's height)."""
+def _longest_side(cloud: SplatCloud) -> float:
+    """Extent (input units) of the cloud's longest bounding-box side (what object.size_m sets)."""
     lo, hi = cloud.bounds()
     return float((hi - lo).max())
 

@@ -4,11 +4,10 @@
 # full-feature model with a wall-clock budget, and in parallel the two ablation models (RGB-only and
 # occupancy-only inputs, shorter budgets); evaluate all three on the same held-out test split.
 # Sizes come from the environment so the same script smoke-tests on a CPU at tiny size:
-#   NTRAIN=20 NVAL=6 NTEST=10 GAUSS=3000 DEVICE=cpu TOTAL_S=400 WORKERS=2 OUT=/tmp/o scripts/gpu_train_default.sh
+#   TRAIN_TIERS='10:2000 10:5000' VAL_TIERS='6:3000' TEST_TIERS='5:2000 5:6000' NABL=10 DEVICE=cpu TOTAL_S=400 WORKERS=2 OUT=/tmp/o scripts/gpu_train_default.sh
 set -u -o pipefail
 START=$(date +%s)
 OUT=${OUT:?set OUT to the output folder}
-NTRAIN=${NTRAIN:-3000}; NVAL=${NVAL:-300}; NTEST=${NTEST:-300}; GAUSS=${GAUSS:-10000}
 NABL=${NABL:-1500}                 # train objects used by each ablation model
 DEVICE=${DEVICE:-cuda}; WORKERS=${WORKERS:-16}; TOTAL_S=${TOTAL_S:-570}
 DATA=${DATA:-/tmp/pixie_data}; SEED=${SEED:-1}
@@ -19,16 +18,28 @@ LOG=$OUT/log.txt
 elapsed() { echo $(( $(date +%s) - START )); }
 say() { echo "[$(elapsed) s] $*" | tee -a "$LOG"; }
 
-say "host: $(nproc) cores; $(python3 -c 'import torch;print(torch.__version__, torch.cuda.is_available() and torch.cuda.get_device_name(0))')"
+say "host: $(nproc --all) cores; $(python3 -c 'import torch;print(torch.__version__, torch.cuda.is_available() and torch.cuda.get_device_name(0))')"
+# Each split mixes several Gaussian counts per object (tiers "COUNT:GAUSSIANS"), so the model sees
+# sparse and dense splats of every class; parts get distinct seeds, merged round-robin.
+TRAIN_TIERS=${TRAIN_TIERS:-"1000:4000 1000:12000 700:30000 300:60000"}
+VAL_TIERS=${VAL_TIERS:-"100:4000 100:12000 70:30000 30:60000"}
+TEST_TIERS=${TEST_TIERS:-"100:5000 100:20000 100:50000"}
 for split in train val test; do
-  n=$NTRAIN; [ $split = val ] && n=$NVAL; [ $split = test ] && n=$NTEST
-  $P generate "$DATA" --count $n --split $split --seed $SEED --workers $WORKERS --gaussians $GAUSS -q --force >>"$LOG" 2>&1 \
-    || { say "generate $split failed"; exit 1; }
-  say "generated $split: $n objects"
+  tiers=$TRAIN_TIERS; [ $split = val ] && tiers=$VAL_TIERS; [ $split = test ] && tiers=$TEST_TIERS
+  parts=(); k=0
+  for tier in $tiers; do
+    n=${tier%%:*}; g=${tier##*:}; part="$DATA/parts/$split$k"
+    $P generate "$part" --count $n --split $split --seed $(( SEED * 100 + k )) --workers $WORKERS --gaussians $g -q --force \
+      >>"$LOG" 2>&1 || { say "generate $split tier $tier failed"; exit 1; }
+    parts+=("$part"); k=$((k + 1))
+  done
+  python3 scripts/merge_splits.py "$DATA" $split "${parts[@]}" >>"$LOG" 2>&1 || { say "merge $split failed"; exit 1; }
+  say "generated $split: $tiers"
 done
+rm -rf "$DATA/parts"
 du -sh "$DATA" >>"$LOG"
 NOW=$(elapsed)
-FULL_BUDGET=$(( TOTAL_S - NOW - 75 ))            # leave time for loading + test evaluation
+FULL_BUDGET=$(( TOTAL_S - NOW - 165 ))           # leave time for loading (~70 s) + test evaluation (~60 s)
 ABL_BUDGET=$(( FULL_BUDGET * 45 / 100 ))
 [ $FULL_BUDGET -lt 30 ] && { say "no time left to train ($FULL_BUDGET s)"; exit 1; }
 say "training: full budget ${FULL_BUDGET} s, ablations ${ABL_BUDGET} s each"

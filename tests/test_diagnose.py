@@ -56,6 +56,13 @@ def test_measured_validation_errors(small_cloud, tmp_path, arrays, message):
     assert message in str(err.value) and str(path) in str(err.value)
 
 
+def test_measured_not_an_npz(small_cloud, tmp_path):
+    path = tmp_path / "scene.json"
+    path.write_text("{}")
+    with pytest.raises(InputError, match="not a .npz archive"):
+        load_measured(path, small_cloud)
+
+
 def test_measured_nan_only_where_invisible(small_cloud, tmp_path):
     x = np.repeat(small_cloud.means[:12][None].astype(np.float64), 5, axis=0)
     x[2, 3] = np.nan
@@ -173,7 +180,7 @@ def test_cli_diagnose_writes_improved_model_and_json(tmp_path, capsys):
     save_measured(measured, arrays["t"], arrays["x"])  # no ids: matched by nearest neighbour
     out = tmp_path / "diag"
     code = main(["diagnose", str(model), str(measured), "--scene", str(scene_path), "--out", str(out),
-                 "--effects", "part_density,part_stiffness,air_drag", "--max-effects", "1", "--json",
+                 "--effects", "part_density,part_stiffness,air_drag", "--max-effects", "1", "--json", "--verify-written",
                  "--device", "cpu", "--quiet"])
     assert code == 0
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
@@ -207,3 +214,21 @@ def test_cli_bad_measured_file_fails_cleanly(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and len(err) == 1 and "bad.npz" in err[0] and "NaN" in err[0]
     assert not out.exists()
+
+
+def test_reduced_model_fit_is_delta_corrected_and_polished(loop_bed):
+    """Large models are fitted on a subset on a coarser grid; the delta correction and the
+    full-model secant polish must still recover the effect and close the gap."""
+    from pixie_gs.diagnose.forward import Fidelity
+    from pixie_gs.diagnose.pipeline import DiagnoseOptions, diagnose
+
+    cloud, scene = loop_bed["cloud"], loop_bed["scene"]
+    arrays = make_measurement(cloud, scene, FRAMES, FPS, "air_drag", None, {"k_per_m": 2.0},
+                              noise_m=NOISE_M, seed=4, device="cpu")
+    tracks = tracks_from_arrays(arrays["t"], arrays["x"], cloud, ids=arrays["ids"])
+    options = DiagnoseOptions(effects=["air_drag", "viscous_damping", "wind"], max_effects=1,
+                              fidelity=Fidelity(max_particles=200, grid_scale=0.6, min_grid=12))
+    d = diagnose(cloud, scene, tracks, device="cpu", options=options)
+    assert d.effect is not None and d.effect.effect == "air_drag"
+    assert d.effect.params["k_per_m"] == pytest.approx(2.0, rel=0.25)
+    assert d.gap_after <= 0.2 * d.gap_before

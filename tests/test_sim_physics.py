@@ -164,11 +164,11 @@ def test_metal_keeps_permanent_set_jelly_recovers_stationary_never_moves():
 
 
 # ---------------------------------------------------------------------------------------- forces
-def free_block_sim(**scene_keys: object) -> tuple[MPMSolver, Particles]:
+def free_block_sim(E: float = 1e5, **scene_keys: object) -> tuple[MPMSolver, Particles]:
     keys = {"domain": {"size_m": 1.0, "grid": 20, "origin": [-0.5, -0.5, -0.5]}, "ground": {"enabled": False},
             "gravity": [0, 0, 0], **scene_keys}
     scene = make_scene(**keys)
-    p = small_block(scene, lo=(-0.1, -0.1, -0.1), hi=(0.1, 0.1, 0.1), E=1e5)
+    p = small_block(scene, lo=(-0.1, -0.1, -0.1), hi=(0.1, 0.1, 0.1), E=E)
     return MPMSolver(p, scene), p
 
 
@@ -211,13 +211,13 @@ def test_wind_window_region_and_impulse():
     outside = dict(wind, start_s=0.0, region={"min": [0.3, 0.3, 0.3], "max": [0.4, 0.4, 0.4]})
     sim, p = free_block_sim(wind=[outside])
     sim.step_frame(0.05)
-    assert np.abs(sim.velocities()).max() < 1e-6
+    assert np.abs(sim.velocities()).max() < 1e-4
 
 
 def test_ground_coulomb_friction_stops_a_sliding_block():
     """A block sliding at v0 decelerates at μg and stops after v0² / (2μg)."""
     mu, v0 = 0.4, 1.0
-    scene = make_scene(domain={"size_m": [0.8, 0.2, 0.2], "grid": 40, "origin": [-0.2, -0.1, -0.03]},
+    scene = make_scene(domain={"size_m": [0.8, 0.2, 0.2], "grid": 40, "origin": [-0.2, -0.1, -0.06]},
                        ground={"friction": mu})
     p = small_block(scene, lo=(-0.04, -0.02, 0.0), hi=(0.04, 0.02, 0.04), E=1e5, v=[v0, 0, 0])
     sim = MPMSolver(p, scene)
@@ -236,9 +236,9 @@ def test_covariance_under_homogeneous_F_is_exactly_F_sigma_FT():
     assert np.array_equal(out[0], (F @ sigma @ F.T).astype(np.float32))  # small integers: exact
     assert np.array_equal(out[1], (F @ F.T).astype(np.float32))
 
-    # through the solver: a uniform velocity gradient stretches a stress-free fluid-like free body,
-    # and the covariances follow the solver's own F
-    sim, p = free_block_sim()
+    # through the solver: a uniform velocity gradient stretches a very soft free body (its
+    # elastic waves are too slow to matter), and the covariances follow the solver's own F
+    sim, p = free_block_sim(E=1.0)
     L = np.array([[0.5, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
     sim.v.assign((p.x @ L.T).astype(np.float32))
     sim.step_frame(0.01)
@@ -263,3 +263,66 @@ def test_particles_outside_the_domain_are_an_input_error():
     p = small_block(scene, lo=(0.2, 0.2, 0.1), hi=(0.3, 0.3, 0.2))
     with pytest.raises(InputError, match="outside the simulation domain"):
         MPMSolver(p, scene)
+
+
+def test_too_stiff_material_is_softened_to_fit_the_substep_cap():
+    scene = make_scene(domain={"size_m": 0.4, "grid": 20}, solver={"max_substeps_per_frame": 50})
+    lo, hi = (-0.04, -0.04, 0.02), (0.04, 0.04, 0.1)
+    first = small_block(scene, lo=lo, hi=hi, material_id=METAL, E=7e10, density=2700.0, yield_stress=1e8)
+    can = join(first, small_block(scene, lo=(0.1, 0.1, 0.02), hi=(0.14, 0.14, 0.06), material_id=METAL,
+                                  E=7e10, density=2700.0))
+    given = np.arange(len(can)) < len(first)  # the first block has its own yield stress
+    sim = MPMSolver(can, scene)
+    assert sim.substeps_for(1 / 30) == 50
+    assert sim.stiffness_scale < 1e-3 and sim.dt * 50 >= 1 / 30
+    ys = sim.yield_stress.numpy()
+    assert np.all(ys[given] == np.float32(1e8))  # a yield stress from the file is kept
+    # a default yield (metal_yield_strain · E) keeps its yield strain when E is softened
+    assert ys[~given] == pytest.approx(1e-3 * 7e10 * sim.stiffness_scale, rel=1e-3)
+    for _ in range(6):  # falls and lands without diverging, shape kept
+        sim.step_frame(1 / 30)
+    z = sim.positions()[given, 2]
+    assert z.min() > -0.5 * scene.dx and np.ptp(z) == pytest.approx(np.ptp(can.x[given, 2]), abs=2e-3)
+
+
+def test_each_plastic_material_behaves_like_itself():
+    """Same block, same drop: fluid spreads flat, sand slumps part-way, snow compacts (Jp < 1) and
+    keeps its shape, jelly keeps its shape."""
+    scene = make_scene(domain={"size_m": 0.4, "grid": 20}, ground={"friction": 0.5})
+    results = {}
+    for mat, name in ((4, "fluid"), (SAND, "sand"), (5, "snow"), (JELLY, "jelly")):
+        p = small_block(scene, lo=(-0.04, -0.04, 0.0), hi=(0.04, 0.04, 0.12), material_id=mat, E=1e5,
+                        nu=0.3, density=1000.0, v=[0, 0, -1.0])
+        sim = MPMSolver(p, scene)
+        for _ in range(12):
+            sim.step_frame(1 / 30)
+        results[name] = (np.ptp(sim.positions()[:, 2]) / np.ptp(p.x[:, 2]), sim.plastic_volume_ratio())
+    print({k: (v[0], v[1].min()) for k, v in results.items()})
+    assert results["fluid"][0] < 0.2 and results["fluid"][0] < 0.8 * results["sand"][0]
+    assert 0.2 < results["sand"][0] < 0.6
+    assert results["snow"][0] > 0.85 and results["snow"][1].min() < 0.95
+    assert 0.95 < results["jelly"][0] < 1.05 and np.all(results["jelly"][1] == 1.0)
+
+
+def test_sand_column_collapse_follows_the_runout_law():
+    """Quarter of an axisymmetric column (a = h0/r0 = 0.5) between two slip walls (its symmetry
+    planes) on a rough floor: normalised runout (r∞ − r0)/r0 within 20 % of 1.24·a (Lube et al.
+    2004). benchmarks/bench_sand_collapse.py covers a = 0.5 … 3 at the same resolution."""
+    r0, aspect, cells = 0.05, 0.5, 12
+    dx = r0 / cells
+    reach = 2.6 * r0
+    scene = make_scene(domain={"size_m": [reach, reach, aspect * r0 + 8 * dx], "grid": int(round(reach / dx)),
+                               "origin": [-3 * dx, -3 * dx, -3 * dx]},
+                       ground={"friction": 0.5}, walls="slip")
+    column = Particles.lattice((0, 0, 0), (r0, r0, aspect * r0), dx / 2,
+                               inside=lambda x: np.hypot(x[:, 0], x[:, 1]) < r0,
+                               E=2e5, nu=0.3, density=2000.0, material_id=SAND)
+    sim = MPMSolver(column, scene)
+    for _ in range(20):
+        sim.step_frame(0.02)
+        if sim.time_s > 0.2 and np.abs(sim.velocities()).max() < 0.005:
+            break
+    assert np.abs(sim.velocities()).max() < 0.005  # came to rest
+    x = sim.positions()
+    runout = (np.percentile(np.hypot(x[:, 0], x[:, 1]), 99.9) - r0) / r0
+    assert runout == pytest.approx(1.24 * aspect, rel=0.2)

@@ -30,10 +30,12 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--json", action="store_true", help="print one JSON object as the last line of stdout")
     p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help="Warp device (auto: cuda if present)")
     p.add_argument("--fill", action="store_true", help="fill solid interiors (as `pixie simulate --fill`)")
-    p.add_argument("--max-particles", type=int, default=6000, metavar="N",
-                   help="fit on a reduced model of at most N Gaussians (coarser grid), delta-corrected (6000)")
-    p.add_argument("--max-evals", type=int, default=8, metavar="N", help="simulations per candidate effect (8)")
+    p.add_argument("--max-particles", type=int, default=3000, metavar="N",
+                   help="fit on a reduced model of at most N Gaussians (coarser grid), delta-corrected (3000)")
+    p.add_argument("--max-evals", type=int, default=10, metavar="N", help="simulations per candidate effect (10)")
     p.add_argument("--no-rrd", action="store_true", help="skip the rerun recording")
+    p.add_argument("--verify-written", action="store_true",
+                   help="re-simulate the improved model once more from the files written to DIR")
     p.add_argument("--force", action="store_true", help="overwrite an earlier diagnosis in DIR")
     p.set_defaults(func=run)
     return p
@@ -95,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     staging = Path(tempfile.mkdtemp(prefix=".diagnose.", dir=out))
     try:
         summary = write_report(staging, result_diag, cloud, device=args.device, fill=args.fill,
-                               rrd=not args.no_rrd, seconds=None)
+                               resimulate=args.verify_written, rrd=not args.no_rrd, seconds=None)
         summary["seconds"] = time.perf_counter() - start
         report = json.loads((staging / "report.json").read_text(encoding="utf-8"))
         report["seconds"] = summary["seconds"]

@@ -33,6 +33,7 @@ from .effects import Effect, EffectContext, Param
 from .locate import residuals, sum_squares
 
 GOLDEN = 0.381966011250105
+GROW = 1.618034  # bracket expansion factor: steps grow geometrically while the best point is at an edge
 
 
 def linear_coord(p: Param, value: float) -> float:
@@ -234,13 +235,13 @@ def _next_point(pts: dict[float, float], a: float, b: float, tol: float) -> floa
         return b if (b - u) > (u - a) else a
     if i == 0:
         if us[0] - a > tol:  # expand towards the lower bound
-            return max(a, us[0] - max(3.0 * tol, 0.5 * (us[1] - us[0])))
+            return max(a, us[0] - max(3.0 * tol, GROW * (us[1] - us[0])))
         if us[1] - us[0] < 2 * tol:
             return None
         return us[0] + GOLDEN * (us[1] - us[0])
     if i == len(us) - 1:
         if b - us[-1] > tol:
-            return min(b, us[-1] + max(3.0 * tol, 0.5 * (us[-1] - us[-2])))
+            return min(b, us[-1] + max(3.0 * tol, GROW * (us[-1] - us[-2])))
         if us[-1] - us[-2] < 2 * tol:
             return None
         return us[-1] - GOLDEN * (us[-1] - us[-2])

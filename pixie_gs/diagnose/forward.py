@@ -33,7 +33,7 @@ class Fidelity:
     """How to reduce a large model for fitting: at most `max_particles` Gaussians and a grid of
     `grid_scale` × the scene's cells (at least `min_grid`)."""
 
-    max_particles: int = 6000
+    max_particles: int = 3000
     grid_scale: float = 0.5
     min_grid: int = 24
     seed: int = 0
@@ -123,7 +123,8 @@ class ForwardModel:
         sub = cloud.subset(self.keep)
         if self.grid_scale < 1.0:
             coarse = copy.deepcopy(scene)
-            coarse.domain.grid = max(self.fidelity.min_grid, int(round(scene.domain.grid * self.grid_scale)))
+            coarse.domain.grid = min(scene.domain.grid,
+                                     max(self.fidelity.min_grid, int(round(scene.domain.grid * self.grid_scale))))
             try:
                 return self._run(sub, coarse, self.reduced_ids)
             except InputError:

@@ -153,6 +153,11 @@ def load_measured(path: str | Path, cloud: SplatCloud) -> MeasuredTracks:
     path = Path(path)
     if not path.exists():
         raise InputError("no such file", path)
+    if path.is_dir():
+        raise InputError("is a directory, not a .npz file", path)
+    with open(path, "rb") as fh:
+        if fh.read(4) != b"PK\x03\x04":
+            raise InputError("not a .npz archive (expected NumPy arrays t (T,) and x (T,M,3))", path)
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}

@@ -31,10 +31,10 @@ class DiagnoseOptions:
 
     effects: list[str] | None = None      # None: the whole library
     max_effects: int = 2                  # length of the chain of added effects
-    max_parts: int = 2                    # per-part effects are tried on the worst this-many parts
+    max_parts: int = 3                    # per-part effects are tried on the worst this-many parts
     verify_top: int = 4                   # candidates simulated at their linear prediction
     refine_top: int = 2                   # candidates refined to `max_evals` runs
-    max_evals: int = 8                    # runs per candidate (screen + verify + refine)
+    max_evals: int = 10                   # runs per candidate (screen + verify + refine)
     min_refine_explained: float = 0.1     # refine only candidates explaining this share of the excess gap
     bic_threshold: float = BIC_THRESHOLD
     min_excess_explained: float = MIN_EXCESS_EXPLAINED
@@ -185,6 +185,8 @@ class _Runner:
                     # no sensitivity (threshold / switch effects) but it helped before: one run
                     # at its earlier best on top of the new model
                     problem.evaluate(cand, prior.best.values)
+                elif prior is None:
+                    screen(problem, cand)  # a part that was not among the worst before
 
         def estimate(c: Candidate) -> float:
             vals = [e.sse for e in c.evaluations] + ([c.predicted_sse] if c.predicted_sse is not None else [])
@@ -249,14 +251,18 @@ def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "au
             if chosen is not None:
                 result.chosen = None  # chain is full: report but do not add
             break
-        accepted.append(chosen)
         exclude.add((chosen.effect, chosen.part))
         winner = by_key[(chosen.effect, chosen.part)]
+        before_scene, before_cloud = cur_scene, cur_cloud
         cur_scene, cur_cloud = winner.effect.apply(cur_scene, cur_cloud, winner.part, dict(chosen.params))
         if model.is_reduced:
             stage("re-simulating the full model with the added effect")
-            cur_pred = model.set_baseline(cur_scene, cur_cloud)
+            cur_scene, cur_cloud, cur_pred, chosen = _polish_on_full_model(
+                runner, problem, winner, chosen, before_scene, before_cloud, cur_scene, cur_cloud)
+            result.chosen = chosen
+            accepted.append(chosen)
         else:
+            accepted.append(chosen)
             cur_pred = winner.best.pred if winner.best and winner.best.pred is not None \
                 else model.simulate_full(cur_scene, cur_cloud)
             model.set_baseline(cur_scene, cur_cloud, full_prediction=cur_pred)
@@ -265,3 +271,48 @@ def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "au
             break
     return Diagnosis(rounds, accepted, copy.deepcopy(cur_scene), cur_cloud, tracks, base_pred, cur_pred,
                      runner.sigma, model.runs, model.seconds, model.cache_hits, from_materials)
+
+
+def _polish_on_full_model(runner: _Runner, problem: Problem, winner: Candidate, chosen: Scored,
+                          scene0, cloud0, scene1, cloud1):
+    """Full-model check (and one secant correction) of an effect fitted on the reduced model.
+
+    The reduced model can get the SIZE of an effect's change a little wrong (coarser grid); the
+    full runs at θ₀ (current model) and θ* (fitted) give the full model's change Δ along the
+    fitted direction, and λ = Δ·r/Δ·Δ rescales the parameter step (in its near-linear
+    coordinate) so the full model matches best; one more full run confirms it. The chosen
+    effect is re-scored with full-model residuals either way.
+    """
+    from .fit import from_linear_coord, linear_coord
+
+    model = runner.model
+    pred1 = model.set_baseline(scene1, cloud1)
+    sse1 = float(np.sum(residuals(problem.measured_x, pred1, problem.visible) ** 2))
+    params = winner.params
+    if params and all(p.off is not None for p in params):
+        delta = problem.flat(pred1) - problem.flat(problem.base_pred)
+        dd = float(delta @ delta)
+        lam = float(delta @ problem.flat(problem.r0)) / dd if dd > 0 else 1.0
+        if np.isfinite(lam) and abs(lam - 1.0) > 0.05:
+            lam = float(np.clip(lam, 0.25, 4.0))
+            values = {}
+            for p in params:
+                u0, u1 = linear_coord(p, p.off), linear_coord(p, chosen.params[p.name])
+                values[p.name] = float(np.clip(from_linear_coord(p, u0 + lam * (u1 - u0)), p.lo, p.hi))
+            s2, c2 = winner.effect.apply(scene0, cloud0, winner.part, values)
+            pred2 = model.simulate_full(s2, c2)
+            sse2 = float(np.sum(residuals(problem.measured_x, pred2, problem.visible) ** 2))
+            if sse2 < sse1:
+                stage(f"full-model correction of {winner.label}: step × {lam:.2f}")
+                scene1, cloud1, pred1, sse1 = s2, c2, pred2, sse2
+                chosen = Scored(**{**chosen.__dict__, "params": values})
+                model.set_baseline(scene1, cloud1, full_prediction=pred1)
+    n = runner.tracks.num_observations
+    rescored = score_candidate(chosen.effect, chosen.part, dict(chosen.params), chosen.num_params, sse1,
+                               problem.base_sse, n, runner.sigma, chosen.evaluations,
+                               runner.options.bic_threshold, runner.options.min_excess_explained,
+                               runner.original_sse)
+    rescored.evidence = evidence(problem, pred1, {"part": problem.cloud.get("part_id")[runner.tracks.ids]},
+                                 runner.tracks.t)
+    rescored.significant = chosen.significant
+    return scene1, cloud1, pred1, rescored

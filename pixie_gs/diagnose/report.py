@@ -165,8 +165,8 @@ def plot_gap(path: Path, diagnosis: Diagnosis, after: np.ndarray, regions: list[
     ranking = diagnosis.rounds[0].ranking[:8] if diagnosis.rounds else []
     scores = [max(s.delta_bic, 0.0) for s in ranking]
     chosen = diagnosis.rounds[0].chosen
-    colors = ["tab:green" if chosen is not None and s is chosen else "yellowgreen" if s.significant else "tab:grey"
-              for s in ranking]
+    colors = ["tab:green" if chosen is not None and (s.effect, s.part) == (chosen.effect, chosen.part)
+              else "yellowgreen" if s.significant else "tab:grey" for s in ranking]
     ax.barh(np.arange(len(ranking))[::-1], scores, color=colors)
     ax.set_yticks(np.arange(len(ranking))[::-1], [s.label for s in ranking], fontsize=8)
     ax.set_xlabel("ΔBIC vs model as given (green: chosen; light: significant alone)")
@@ -207,9 +207,13 @@ def record(path: Path, diagnosis: Diagnosis, after: np.ndarray) -> None:
 
 
 def write_report(out_dir: Path, diagnosis: Diagnosis, input_cloud: SplatCloud, device: str = "auto",
-                 fill: bool = False, resimulate: bool = True, rrd: bool = True, png: bool = True,
+                 fill: bool = False, resimulate: bool = False, rrd: bool = True, png: bool = True,
                  seconds: float | None = None) -> dict:
-    """Write every output into `out_dir` (which must exist) and return the summary dict."""
+    """Write every output into `out_dir` (which must exist) and return the summary dict.
+
+    The gap "after" comes from the full-model re-simulation of the improved model that the
+    diagnosis already ran; `resimulate` runs it once more from the files as written (a check
+    that the baked `.ply` + scene.json reproduce it)."""
     paths = write_model(out_dir, diagnosis, input_cloud)
     if resimulate and diagnosis.accepted:
         after = resimulate_written(paths, input_cloud, diagnosis.tracks, device, fill)

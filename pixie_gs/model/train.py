@@ -101,6 +101,8 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
     steps_per_epoch = math.ceil(len(train_store) / cfg.batch_size)
     total_steps = steps_per_epoch * cfg.epochs
     use_amp = str(device).startswith("cuda")
+    if use_amp:
+        torch.backends.cudnn.benchmark = True
     meta = {"train_config": asdict(cfg), "train_objects": len(train_store), "val_objects": len(val_store),
             "data_dir": str(data_dir), "history": history}
     stage(f"training {sum(p.numel() for p in model.parameters())} parameters on {device}: "
@@ -133,7 +135,7 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
             opt.step()
             step += 1
             done += 1
-            sums["loss"] += float(loss)
+            sums["loss"] += float(loss.detach())
             for k, v in parts.items():
                 sums[k] += v
         if done == 0:

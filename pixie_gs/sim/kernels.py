@@ -3,27 +3,14 @@
 One Warp module (compiled once per machine): P2G scatters mass, momentum and stress; the grid
 update turns momentum into velocity and applies forces and boundaries (and clears the scatter
 buffers for the next substep); G2P gathers velocity and its gradient, moves particles, updates
-F ← (I + dt·C)·F and applies the return mappings of sim/constitutive.py.
+F ← (I + dt·C)·F, applies the return mapping of sim/constitutive.py and stores the stress.
 Grid node (i, j, k) sits at world position origin + (i, j, k)·dx.
 """
 from __future__ import annotations
 
 import warp as wp
 
-from .constitutive import (NO_YIELD, drucker_prager_return, fluid_return, kirchhoff_stress, snow_return,
-                           von_mises_return)
-
-
-@wp.struct
-class MaterialParams:
-    """Model parameters shared by all particles (from Scene.materials)."""
-
-    sand_alpha: float  # Drucker–Prager cone slope
-    snow_theta_c: float
-    snow_theta_s: float
-    snow_hardening: float
-    viscoplastic_relax_s: float  # η / (2μ) is per particle; this is η (Pa·s)
-    fluid_viscosity: float  # Pa·s
+from .constitutive import MaterialParams, update_material
 
 
 @wp.struct
@@ -42,11 +29,9 @@ def bspline_weights(fx: float) -> wp.vec3:
 
 @wp.kernel
 def p2g(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33),
-        F: wp.array(dtype=wp.mat33), volume: wp.array(dtype=float), mass: wp.array(dtype=float),
-        mu: wp.array(dtype=float), lam: wp.array(dtype=float), material: wp.array(dtype=wp.int32),
-        Jp: wp.array(dtype=float), fixed: wp.array(dtype=wp.int32), grid: GridInfo, mp: MaterialParams,
-        dt: float, grid_mass: wp.array3d(dtype=float), grid_momentum: wp.array3d(dtype=wp.vec3),
-        grid_fixed: wp.array3d(dtype=float)):
+        stress: wp.array(dtype=wp.mat33), volume: wp.array(dtype=float), mass: wp.array(dtype=float),
+        fixed: wp.array(dtype=wp.int32), grid: GridInfo, dt: float, grid_mass: wp.array3d(dtype=float),
+        grid_momentum: wp.array3d(dtype=wp.vec3), grid_fixed: wp.array3d(dtype=float)):
     p = wp.tid()
     xg = (x[p] - grid.origin) * grid.inv_dx
     base = wp.vec3i(int(xg[0] - 0.5), int(xg[1] - 0.5), int(xg[2] - 0.5))
@@ -56,12 +41,9 @@ def p2g(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtyp
     wz = bspline_weights(fx[2])
     m = mass[p]
     is_fixed = fixed[p]
-    stress = wp.mat33(0.0)
-    if is_fixed == 0:
-        stress = kirchhoff_stress(F[p], C[p], mu[p], lam[p], material[p], Jp[p], mp.snow_hardening,
-                                  mp.fluid_viscosity)
-    # MLS-MPM: stress and APIC affine momentum share one matrix; D⁻¹ = 4/dx² for quadratic splines
-    affine = (-dt * volume[p] * 4.0 * grid.inv_dx * grid.inv_dx) * stress + m * C[p]
+    # MLS-MPM: stress (Kirchhoff, stored by the last G2P) and APIC affine momentum share one
+    # matrix; D⁻¹ = 4/dx² for quadratic B-splines
+    affine = (-dt * volume[p] * 4.0 * grid.inv_dx * grid.inv_dx) * stress[p] + m * C[p]
     mv = m * v[p]
     for i in range(3):
         for j in range(3):
@@ -108,7 +90,9 @@ def grid_update(grid_mass: wp.array3d(dtype=float), grid_momentum: wp.array3d(dt
         vel = vel + dt * acc
         vel = vel * wp.exp(-damping * dt)  # viscous damping, exact for dv/dt = −c·v
         vel = vel / (1.0 + air_drag * wp.length(vel) * dt)  # quadratic drag a = −k|v|v, implicit
-        if ground_enabled != 0 and node[2] <= ground_height and vel[2] < 0.0:
+        # the ground (and, when the ground is on, the domain floor: same friction) stops inflow
+        on_ground = node[2] <= ground_height or k < boundary
+        if ground_enabled != 0 and on_ground and vel[2] < 0.0:
             vn = -vel[2]  # speed into the ground, removed; Coulomb friction slows the tangential part
             vt = wp.vec3(vel[0], vel[1], 0.0)
             speed_t = wp.length(vt)
@@ -136,7 +120,7 @@ def g2p(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtyp
         F: wp.array(dtype=wp.mat33), mu: wp.array(dtype=float), lam: wp.array(dtype=float),
         yield_stress: wp.array(dtype=float), material: wp.array(dtype=wp.int32), Jp: wp.array(dtype=float),
         fixed: wp.array(dtype=wp.int32), grid: GridInfo, mp: MaterialParams, dt: float,
-        grid_velocity: wp.array3d(dtype=wp.vec3)):
+        grid_velocity: wp.array3d(dtype=wp.vec3), stress: wp.array(dtype=wp.mat33)):
     p = wp.tid()
     if fixed[p] != 0:
         v[p] = wp.vec3(0.0)
@@ -167,23 +151,10 @@ def g2p(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtyp
     x[p] = grid.origin + xn * grid.dx
 
     Fn = (wp.identity(n=3, dtype=float) + dt * new_C) * F[p]
-    mat = material[p]
-    ys = yield_stress[p]
-    if mat == 0 or mat == 1:  # jelly with a finite yield stress, metal: von Mises (permanent set)
-        if ys < NO_YIELD:
-            Fn = von_mises_return(Fn, mu[p], ys, 1.0)
-    elif mat == 2:
-        Fn = drucker_prager_return(Fn, mu[p], lam[p], mp.sand_alpha)
-    elif mat == 3:  # Perzyna: a fraction dt / (dt + η/(2μ)) of the excess flows this substep
-        relax = mp.viscoplastic_relax_s / (2.0 * mu[p])
-        Fn = von_mises_return(Fn, mu[p], ys, dt / (dt + relax))
-    elif mat == 4:
-        Fn = fluid_return(Fn)
-    elif mat == 5:
-        J_trial = wp.determinant(Fn)
-        Fn = snow_return(Fn, mp.snow_theta_c, mp.snow_theta_s)
-        Jp[p] = wp.clamp(Jp[p] * J_trial / wp.determinant(Fn), 0.2, 5.0)
+    Fn, Jp_new, tau = update_material(Fn, new_C, mu[p], lam[p], material[p], yield_stress[p], Jp[p], dt, mp)
     F[p] = Fn
+    Jp[p] = Jp_new
+    stress[p] = tau
 
 
 @wp.kernel

@@ -123,7 +123,7 @@ class SolverSettings:
 class MaterialSettings:
     """Parameters of the constitutive models that the per-particle file attributes do not carry."""
 
-    sand_friction_angle_deg: float = 30.0
+    sand_friction_angle_deg: float = 25.0  # reproduces the Lube/Lajeunesse runout law (benchmarks)
     snow_critical_compression: float = 2.5e-2  # θc (Stomakhin et al. 2013)
     snow_critical_stretch: float = 7.5e-3  # θs
     snow_hardening: float = 10.0  # ξ
@@ -417,7 +417,7 @@ class _SceneParser:
         m = self.table(value, "materials", tuple(MaterialSettings.__dataclass_fields__))
         k = "materials"
         return MaterialSettings(
-            self.number(m, "sand_friction_angle_deg", k, 30.0, lo=0.0, hi=60.0),
+            self.number(m, "sand_friction_angle_deg", k, 25.0, lo=0.0, hi=60.0),
             self.number(m, "snow_critical_compression", k, 2.5e-2, lo=0.0, hi=0.99),
             self.number(m, "snow_critical_stretch", k, 7.5e-3, lo=0.0),
             self.number(m, "snow_hardening", k, 10.0, lo=0.0),

@@ -17,7 +17,7 @@ wp.config.log_level = wp.LOG_WARNING
 
 from ..devices import resolve_warp_device  # noqa: E402
 from ..errors import ComputationError, InputError
-from ..materials import FLUID, MATERIAL_NAMES, METAL, SAND, STATIONARY, VISCOPLASTIC
+from ..materials import MATERIAL_NAMES, METAL, STATIONARY, VISCOPLASTIC
 from ..progress import stage
 from . import kernels
 from .constitutive import NO_YIELD
@@ -80,17 +80,21 @@ class MPMSolver:
         self._moving = ~fixed
 
         ys = particles.yield_stress.astype(np.float64).copy()
+        self._yield_from_strain = np.zeros(self.n, bool)  # yield = strain · E (scaled with a stiffness cap)
         mats = scene.materials
         for mid, strain in ((METAL, mats.metal_yield_strain), (VISCOPLASTIC, mats.viscoplastic_yield_strain)):
             default = (self.material_id == mid) & ~np.isfinite(ys)
             ys[default] = strain * self._E[default]
+            self._yield_from_strain |= default
         ys[~np.isfinite(ys)] = NO_YIELD
+        self._yield_base = ys.copy()
 
         d = self.device
         v0 = np.where(fixed[:, None], 0.0, particles.v).astype(np.float32)
         self.x = wp.array(particles.x, dtype=wp.vec3, device=d)
         self.v = wp.array(v0, dtype=wp.vec3, device=d)
         self.C = wp.zeros(self.n, dtype=wp.mat33, device=d)
+        self.stress = wp.zeros(self.n, dtype=wp.mat33, device=d)  # Kirchhoff τ (Pa) after the last G2P
         self.F = wp.array(np.tile(np.eye(3, dtype=np.float32), (self.n, 1, 1)), dtype=wp.mat33, device=d)
         self.volume = wp.array(particles.volume, dtype=float, device=d)
         self.mass = wp.array(particles.mass, dtype=float, device=d)
@@ -114,6 +118,7 @@ class MPMSolver:
         self.grid_info.dims = wp.vec3i(*self.dims)
         self.material_params = self._material_params()
         self._upload_wind()
+        self._record_launches()
 
     # ------------------------------------------------------------------ set-up helpers
     def _check_inside(self, x: np.ndarray) -> None:
@@ -135,7 +140,7 @@ class MPMSolver:
         mp.snow_theta_c = m.snow_critical_compression
         mp.snow_theta_s = m.snow_critical_stretch
         mp.snow_hardening = m.snow_hardening
-        mp.viscoplastic_relax_s = m.viscoplastic_viscosity_pa_s
+        mp.viscoplastic_viscosity = m.viscoplastic_viscosity_pa_s
         mp.fluid_viscosity = m.fluid_viscosity_pa_s
         return mp
 
@@ -206,6 +211,9 @@ class MPMSolver:
         scale = np.minimum(1.0, (c_allowed / np.maximum(self._wave_speed, 1e-30)) ** 2) * 0.999
         scale = np.where(self._wave_speed * np.sqrt(self._scale) > c_allowed, scale, self._scale)
         self._set_stiffness(scale)
+        # a softened part keeps its yield *strain*: default yield stresses (strain · E) scale too
+        ys = np.where(self._yield_from_strain, self._yield_base * scale, self._yield_base)
+        self.yield_stress.assign(ys.astype(np.float32))
         self.stiffness_scale = float(scale[self._moving].min()) if self._moving.any() else 1.0
         softened = sorted({MATERIAL_NAMES[int(m)] for m in self.material_id[(scale < 1.0) & self._moving]})
         stage(f"stiffness of {', '.join(softened)} capped at {self.stiffness_scale:.2g}×E to fit "
@@ -250,24 +258,37 @@ class MPMSolver:
         hi = np.minimum(np.floor(g.max(0) - 0.5).astype(int) + 3, self.dims)
         return tuple(int(a) for a in lo), tuple(int(b - a) for a, b in zip(lo, hi))  # type: ignore[return-value]
 
+    def _record_launches(self) -> None:
+        """Pack every kernel's arguments once; substeps then only update dt, time and the box.
+        (The scene is read here: changing it after construction has no effect.)"""
+        sc, d = self.scene, self.device
+        self._p2g = wp.launch(
+            kernels.p2g, dim=self.n, device=d, record_cmd=True,
+            inputs=[self.x, self.v, self.C, self.stress, self.volume, self.mass, self.fixed_flag, self.grid_info,
+                    0.0, self.grid_mass, self.grid_momentum, self.grid_fixed])
+        self._grid = wp.launch(
+            kernels.grid_update, dim=self.dims, device=d, record_cmd=True,
+            inputs=[self.grid_mass, self.grid_momentum, self.grid_fixed, self.grid_velocity, self.grid_info,
+                    wp.vec3i(0, 0, 0), 0.0, 0.0, wp.vec3(*sc.gravity), self.wind_acc, self.wind_lo, self.wind_hi,
+                    self.wind_timing, len(sc.wind), sc.damping, sc.air_drag, int(sc.ground.enabled),
+                    sc.ground.height_m, sc.ground.friction, int(sc.walls == "sticky"), BOUNDARY_CELLS])
+        self._g2p = wp.launch(
+            kernels.g2p, dim=self.n, device=d, record_cmd=True,
+            inputs=[self.x, self.v, self.C, self.F, self.mu, self.lam, self.yield_stress, self.material,
+                    self.Jp, self.fixed_flag, self.grid_info, self.material_params, 0.0, self.grid_velocity,
+                    self.stress])
+
     def _substep(self, dt: float, t: float) -> None:
-        sc = self.scene
-        d = self.device
-        wp.launch(kernels.p2g, dim=self.n, device=d,
-                  inputs=[self.x, self.v, self.C, self.F, self.volume, self.mass, self.mu, self.lam,
-                          self.material, self.Jp, self.fixed_flag, self.grid_info, self.material_params, dt,
-                          self.grid_mass, self.grid_momentum, self.grid_fixed])
+        self._p2g.set_param_by_name("dt", dt)
+        self._p2g.launch()
         box_lo, box_shape = self._active_box()
-        wp.launch(kernels.grid_update, dim=box_shape, device=d,
-                  inputs=[self.grid_mass, self.grid_momentum, self.grid_fixed, self.grid_velocity,
-                          self.grid_info, wp.vec3i(*box_lo), dt, t, wp.vec3(*sc.gravity),
-                          self.wind_acc, self.wind_lo, self.wind_hi, self.wind_timing, len(sc.wind),
-                          sc.damping, sc.air_drag, int(sc.ground.enabled), sc.ground.height_m,
-                          sc.ground.friction, int(sc.walls == "sticky"), BOUNDARY_CELLS])
-        wp.launch(kernels.g2p, dim=self.n, device=d,
-                  inputs=[self.x, self.v, self.C, self.F, self.mu, self.lam, self.yield_stress, self.material,
-                          self.Jp, self.fixed_flag, self.grid_info, self.material_params, dt,
-                          self.grid_velocity])
+        self._grid.set_dim(box_shape)
+        self._grid.set_param_by_name("box_lo", wp.vec3i(*box_lo))
+        self._grid.set_param_by_name("dt", dt)
+        self._grid.set_param_by_name("time_s", t)
+        self._grid.launch()
+        self._g2p.set_param_by_name("dt", dt)
+        self._g2p.launch()
 
     # ------------------------------------------------------------------ guard and results
     def _guard(self, dt: float) -> None:

@@ -19,7 +19,7 @@ class PartPlasticYield(Effect):
             if context.part in context.scene.part_overrides else 1.0
         E = E * scale
         return (Param("yield_stress_pa", "Pa", 1e-5 * E, 0.3 * E, log=True, probe=3e-3 * E, off=None,
-                      extra_probes=(3e-2 * E,)),)
+                      extra_probes=(3e-2 * E, 3e-4 * E)),)
 
     def apply(self, scene, cloud, part, values):
         scene = self.edited(scene)

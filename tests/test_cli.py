@@ -1,0 +1,80 @@
+"""Every `pixie` command: `--help` works fast (exit 0, an example, no torch/warp/rerun/trimesh
+import) and a bad argument gives one error line, no traceback, a non-zero exit and no output.
+
+Commands run as a user runs them, `python -m pixie_gs ...`, in subprocesses.
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from pixie_gs.cli.main import COMMANDS
+
+HEAVY_MODULES = ("torch", "warp", "rerun", "trimesh")
+REGISTERED = [c for c in COMMANDS if (Path(__file__).resolve().parent.parent / "pixie_gs" / "cli" / f"cmd_{c}.py").exists()]
+
+# one bad argument per command: (arguments, expected exit code, a word the error must contain)
+BAD_ARGUMENTS = {
+    "demo": (["--frames", "1"], 1, "--frames"),
+    "info": (["missing.ply"], 1, "missing.ply"),
+    "convert": (["missing.obj", "out.ply"], 1, "missing.obj"),
+    "generate": (["gen_out", "--count", "0"], 1, "--count"),
+    "train": (["missing_dir", "--out", "model.pt"], 1, "missing_dir"),
+    "evaluate": (["missing.pt", "missing_dir"], 1, "missing.pt"),
+    "annotate": (["missing.ply", "out.ply"], 1, "missing.ply"),
+    "simulate": (["missing.ply", "--out", "frames"], 1, "missing.ply"),
+    "diagnose": (["missing.ply", "missing.npz", "--scene", "missing.json", "--out", "diag"], 1, "missing.ply"),
+}
+
+
+def pixie(args: list[str], cwd: Path, *python_flags: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, *python_flags, "-m", "pixie_gs", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=120)
+
+
+def error_lines(stderr: str) -> list[str]:
+    return [line for line in stderr.splitlines() if "error" in line.lower()]
+
+
+def test_every_command_is_registered_and_has_a_bad_argument_case():
+    assert "demo" in REGISTERED and "info" in REGISTERED
+    assert set(REGISTERED) <= set(BAD_ARGUMENTS), "add a bad-argument case for every command"
+
+
+@pytest.mark.parametrize("command", REGISTERED)
+def test_help_has_example_and_imports_nothing_heavy(command, tmp_path):
+    result = pixie([command, "--help"], tmp_path, "-X", "importtime")
+    assert result.returncode == 0, result.stderr
+    assert "example:" in result.stdout
+    assert f"pixie {command}" in result.stdout  # the usage line names the command
+    imported = {line.rsplit("|", 1)[-1].strip() for line in result.stderr.splitlines() if line.startswith("import time:")}
+    assert not imported & set(HEAVY_MODULES), f"--help imported {sorted(imported & set(HEAVY_MODULES))}"
+
+
+@pytest.mark.parametrize("command", REGISTERED)
+def test_bad_argument_is_one_line_error_without_traceback(command, tmp_path):
+    args, code, word = BAD_ARGUMENTS[command]
+    result = pixie([command, *args], tmp_path)
+    assert result.returncode == code, result.stderr
+    assert "Traceback" not in result.stderr and "Traceback" not in result.stdout
+    errors = error_lines(result.stderr)
+    assert len(errors) == 1, result.stderr
+    assert errors[0].startswith(f"pixie {command}: error:") and word in errors[0]
+    assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+@pytest.mark.parametrize("command", REGISTERED)
+def test_unknown_flag_is_a_usage_error(command, tmp_path):
+    result = pixie([command, "--no-such-flag"], tmp_path)
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    assert len(error_lines(result.stderr)) == 1, result.stderr
+
+
+def test_no_command_prints_help_and_exits_2(tmp_path):
+    result = pixie([], tmp_path)
+    assert result.returncode == 2
+    assert "demo" in result.stdout and "Exit codes" in result.stdout

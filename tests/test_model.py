@@ -1,0 +1,164 @@
+"""Material network: masked loss values, a tiny training run that learns, checkpoints, shipped model."""
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from pixie_gs.errors import InputError
+from pixie_gs.materials import BACKGROUND, METAL, JELLY, NUM_CLASSES, normalize_physical
+from pixie_gs.model.batch import AugmentConfig, build_batch
+from pixie_gs.model.checkpoint import DEFAULT_CHECKPOINT, FeatureSpec, load_checkpoint, save_checkpoint
+from pixie_gs.model.data import DeviceStore, record_from_cloud
+from pixie_gs.model.predict import grid_channel_names, select_inputs
+from pixie_gs.model.unet import MaterialUNet, ModelConfig, masked_loss
+from pixie_gs.splat import SplatCloud
+
+SPEC = FeatureSpec(resolution=16)
+NAMES = grid_channel_names(())
+
+
+def _labelled(shape: str, seed: int) -> SplatCloud:
+    """A tiny labelled object: a red jelly ball or a grey metal box shell."""
+    rng = np.random.default_rng(seed)
+    if shape == "ball":
+        p = rng.normal(size=(1500, 3))
+        p /= np.linalg.norm(p, axis=1, keepdims=True)
+        rgb, mid, E, nu, rho = [0.9, 0.2, 0.2], JELLY, 4e4, 0.42, 120.0
+    else:
+        p = rng.uniform(-1, 1, size=(1500, 3))
+        axis = rng.integers(0, 3, 1500)
+        p[np.arange(1500), axis] = np.sign(p[np.arange(1500), axis])
+        rgb, mid, E, nu, rho = [0.6, 0.6, 0.65], METAL, 6e10, 0.3, 2700.0
+    cloud = SplatCloud.from_arrays(p, log_scales=np.full((1500, 3), np.log(0.06)), rgb=np.tile(rgb, (1500, 1)))
+    n = len(cloud)
+    cloud.set_materials(np.full(n, mid), np.full(n, E), np.full(n, nu), np.full(n, rho))
+    return cloud
+
+
+@pytest.fixture(scope="module")
+def store():
+    records = [record_from_cloud(_labelled(s, i), [], f"{s}{i}", s) for i, s in enumerate(["ball", "box"] * 2)]
+    return DeviceStore(records, "cpu")
+
+
+def test_masked_loss_counts_only_occupied_voxels():
+    b, n = 1, 4
+    occ = torch.zeros(b, n, n, n, dtype=torch.bool)
+    occ[0, :2] = True  # 32 occupied voxels
+    target_class = torch.full((b, n, n, n), BACKGROUND)
+    target_class[occ] = METAL
+    target_phys = torch.zeros(b, 3, n, n, n)
+    logits = torch.zeros(b, NUM_CLASSES, n, n, n)  # uniform: CE = ln 8
+    phys = torch.zeros(b, 3, n, n, n)
+    phys[:, 1] = 0.5  # ν error 0.5 everywhere → MSE 0.25
+    loss, parts = masked_loss(logits, phys, target_class, target_phys, occ)
+    assert parts["ce"] == pytest.approx(math.log(8), rel=1e-6)
+    assert parts["mse_nu"] == pytest.approx(0.25) and parts["mse_log_E"] == 0.0
+    assert float(loss) == pytest.approx(math.log(8) + 0.25, rel=1e-6)
+    # anything in unoccupied voxels is ignored
+    logits[:, :, 3] = 50.0
+    phys[:, :, 3] = 9.0
+    loss2, _ = masked_loss(logits, phys, target_class, target_phys, occ)
+    assert float(loss2) == pytest.approx(float(loss), rel=1e-6)
+
+
+def test_voxel_labels_follow_the_gaussians(store):
+    batch = build_batch(store, [0, 1], SPEC)
+    occ = batch.occupied
+    assert occ[0].sum() > 50 and occ[1].sum() > 50
+    assert torch.all(batch.target_class[0][occ[0]] == JELLY)
+    assert torch.all(batch.target_class[1][occ[1]] == METAL)
+    assert torch.all(batch.target_class[~occ] == BACKGROUND)
+    want = torch.as_tensor(normalize_physical(6e10, 0.3, 2700.0))
+    got = batch.target_physical[1].permute(1, 2, 3, 0)[occ[1]]
+    assert torch.allclose(got, want.expand_as(got), atol=1e-4)
+
+
+def test_augmentation_keeps_labels_and_changes_the_grid(store):
+    gen = torch.Generator().manual_seed(3)
+    plain = build_batch(store, [1], SPEC)
+    aug = build_batch(store, [1], SPEC, AugmentConfig(), gen)
+    assert torch.all(aug.target_class[aug.occupied] == METAL)
+    assert not torch.equal(plain.occupied, aug.occupied)  # rotated/stretched box covers other voxels
+
+
+def test_tiny_training_run_reduces_the_loss(store):
+    torch.manual_seed(0)
+    model = MaterialUNet(ModelConfig(input_channels=NAMES, projector_hidden=8, projector_out=8, base_channels=8,
+                                     multipliers=[1, 2]))
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    batch = build_batch(store, [0, 1, 2, 3], SPEC)
+    x = select_inputs(batch.inputs, NAMES, NAMES)
+    losses = []
+    for _ in range(25):
+        logits, phys = model(x)
+        loss, _ = masked_loss(logits, phys, batch.target_class, batch.target_physical, batch.occupied)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(float(loss.detach()))
+    assert losses[-1] < 0.3 * losses[0]
+    with torch.no_grad():
+        logits, _ = model(x)
+    pred = logits[:, :BACKGROUND].argmax(1)
+    assert float((pred[batch.occupied] == batch.target_class[batch.occupied]).float().mean()) > 0.95
+
+
+def test_checkpoint_round_trip_weights_only(tmp_path):
+    torch.manual_seed(1)
+    model = MaterialUNet(ModelConfig(input_channels=NAMES[:5], base_channels=8, multipliers=[1, 2]))
+    spec = FeatureSpec(resolution=16, extra_names=("clip_0",))
+    path = tmp_path / "m.pt"
+    save_checkpoint(path, model, spec, {"note": "test"})
+    raw = torch.load(path, weights_only=True, map_location="cpu")
+    assert raw["normalization"]["nu"] == [0.21, 0.449]
+    loaded = load_checkpoint(path)
+    assert loaded.features == spec and loaded.config == model.config and loaded.meta == {"note": "test"}
+    x = torch.randn(1, 5, 16, 16, 16)
+    model.eval()
+    with torch.no_grad():
+        a, b = model(x), loaded.model(x)
+    assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
+
+
+def test_bad_checkpoints_are_input_errors(tmp_path):
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.raises(InputError, match="bad.pt"):
+        load_checkpoint(bad)
+    other = tmp_path / "other.pt"
+    torch.save({"format": "something-else"}, other)
+    with pytest.raises(InputError, match="not a pixie-gs material checkpoint"):
+        load_checkpoint(other)
+    with pytest.raises(InputError, match="not found"):
+        load_checkpoint(tmp_path / "missing.pt")
+
+
+def test_shipped_checkpoint_is_small_and_loads_weights_only():
+    assert DEFAULT_CHECKPOINT.is_file()
+    assert os.path.getsize(DEFAULT_CHECKPOINT) <= 20 * 2 ** 20
+    loaded = load_checkpoint()
+    assert loaded.features.resolution == 64
+    assert loaded.meta["val"]["voxel"]["accuracy"] > 0.95
+
+
+@pytest.mark.parametrize("class_name,material", [("sport_balls", JELLY), ("soda_cans", METAL)])
+def test_shipped_checkpoint_predicts_generated_ball_and_can(class_name, material):
+    from pixie_gs.annotate import annotate_cloud
+    from pixie_gs.dataset.assemble import build_object
+    from pixie_gs.dataset.labels import load_class_table
+
+    cloud, _ = build_object(load_class_table()[class_name], 12345, 4000)
+    true_E = cloud.get_materials()[1]
+    for name in ("material_id", "E", "nu", "density", "part_id"):
+        del cloud.extras[name]
+    cloud.property_order = [p for p in cloud.property_order if p in cloud.extras or not cloud.has(p) and p[:1] != "_"]
+    cloud.property_order = [p for p in cloud.property_order if p not in ("material_id", "E", "nu", "density", "part_id")]
+    out = annotate_cloud(cloud, device="cpu")
+    mid, E, nu, rho = out.get_materials()
+    assert np.mean(mid == material) > 0.95
+    assert abs(np.median(np.log10(E)) - np.median(np.log10(true_E))) < 0.5
