@@ -17,6 +17,7 @@ against the baseline of ONE full simulation of the same model measured in the sa
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import sys
 import tempfile
 import time
@@ -134,8 +135,9 @@ def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values
     cpu_start = time.process_time()
     tracks = tracks_from_arrays(arrays["t"], arrays["x"], cloud, ids=arrays["ids"])
     d = diagnose(cloud, scene, tracks, device=device, options=DiagnoseOptions())
+    has_rerun = importlib.util.find_spec("rerun") is not None  # GPU boxes may lack rerun-sdk
     with tempfile.TemporaryDirectory() as out:
-        summary = write_report(Path(out), d, cloud, device=device)
+        summary = write_report(Path(out), d, cloud, device=device, rrd=has_rerun)
     total = time.perf_counter() - start
     cpu = time.process_time() - cpu_start
     named = d.effect

@@ -19,6 +19,7 @@ with the number of Gaussians, not with N³ × Gaussians. The same torch code run
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -143,15 +144,18 @@ def splat_field(means, covariances, alphas, features, resolution: int = 64, filt
     n = int(resolution)
     m = means.shape[0]
     f = features.shape[1]
-    pad = int(max_radius_voxels)
+    pad = int(math.ceil(max_radius_voxels - 0.5 + 0.87))  # the largest stencil offset
     np_ = n + 2 * pad  # padded grid side: stencils never leave it, so no bounds test per pair
     acc = torch.zeros(batch_size * np_ ** 3, f + 1, device=dev, dtype=torch.float32)
     if m:
         h = 1.0 / n
         cov = covariances.to(torch.float32) + (filter_voxels * h) ** 2 * torch.eye(3, device=dev)
         prec = inverse_3x3(cov).float()
-        half_width = cutoff_sigma * torch.sqrt(torch.diagonal(cov, dim1=1, dim2=2)).amax(dim=1)  # unit
-        radius = torch.clamp(torch.ceil(half_width * n + 0.5), 1, max_radius_voxels).long()
+        # Reach of the cutoff ellipsoid (voxels) is cutoff·√λmax; group Gaussians by it in half-voxel
+        # steps. The mean lies within 0.87 voxel (half-diagonal) of its base voxel's centre, so offsets
+        # with |o| ≤ reach + 0.87 cover every voxel centre the ellipsoid can contain.
+        reach = cutoff_sigma * torch.sqrt(eigvals_sym_3x3(cov)[:, 2].float()) * n
+        reach_key = torch.clamp(torch.ceil(reach * 2.0) / 2.0, 0.5, max_radius_voxels - 0.5)
         base = torch.floor(means * n).long().clamp_(0, n - 1)  # voxel containing the centre
         delta = (base.float() + 0.5) * h - means  # centre of that voxel minus the mean (M,3)
         # maha(g, o) = h² oᵀPo + 2h oᵀPδ + δᵀPδ: one (G,10)@(10,K) matmul per chunk.
@@ -162,13 +166,15 @@ def splat_field(means, covariances, alphas, features, resolution: int = 64, filt
         coef = torch.cat([p6, pd, cst[:, None]], dim=1)  # (M,10)
         bidx = torch.zeros(m, dtype=torch.long, device=dev) if batch_index is None else batch_index.long()
         base_flat = ((bidx * np_ + base[:, 0] + pad) * np_ + base[:, 1] + pad) * np_ + base[:, 2] + pad
-        weighted = torch.cat([torch.ones(m, 1, device=dev), features.to(torch.float32)], dim=1)
+        alpha = alphas.to(torch.float32)[:, None]
+        weighted = torch.cat([alpha, alpha * features.to(torch.float32)], dim=1)  # α·[1, f]
         cut2 = cutoff_sigma ** 2
-        for r in torch.unique(radius).tolist():
-            sel = torch.nonzero(radius == r).squeeze(1)
+        for key in torch.unique(reach_key).tolist():
+            sel = torch.nonzero(reach_key == key).squeeze(1)
+            r = int(math.ceil(key + 0.87))
             rng = torch.arange(-r, r + 1, device=dev)
             off = torch.stack(torch.meshgrid(rng, rng, rng, indexing="ij"), dim=-1).reshape(-1, 3)
-            off = off[(off ** 2).sum(1) <= (r + 0.87) ** 2]  # box corners outside the sphere never count
+            off = off[(off ** 2).sum(1) <= (key + 0.87) ** 2]
             o = off.float()
             basis = torch.stack([o[:, 0] ** 2, o[:, 1] ** 2, o[:, 2] ** 2, o[:, 0] * o[:, 1], o[:, 0] * o[:, 2],
                                  o[:, 1] * o[:, 2], o[:, 0], o[:, 1], o[:, 2], torch.ones_like(o[:, 0])], dim=0)
@@ -178,9 +184,9 @@ def splat_field(means, covariances, alphas, features, resolution: int = 64, filt
                 g = sel[start:start + per_chunk]
                 maha = coef[g] @ basis  # (G,K)
                 gi, ki = torch.nonzero(maha <= cut2, as_tuple=True)
-                w = alphas[g[gi]] * torch.exp(-0.5 * maha[gi, ki])
-                flat = base_flat[g[gi]] + off_flat[ki]
-                acc.index_add_(0, flat, w[:, None] * weighted[g[gi]])
+                gg = g[gi]
+                w = torch.exp(-0.5 * maha[gi, ki])
+                acc.index_add_(0, base_flat[gg] + off_flat[ki], w[:, None] * weighted[gg])
     acc = acc.view(batch_size, np_, np_, np_, f + 1)[:, pad:pad + n, pad:pad + n, pad:pad + n]
     acc = acc.reshape(batch_size, n ** 3, f + 1)
     return acc[..., 0].contiguous(), acc[..., 1:].contiguous()

@@ -22,13 +22,18 @@ def nearest_voxel_values(points_unit: np.ndarray, classes: np.ndarray, physical:
 
     n = classes.shape[0]
     candidates = occupancy & (classes != BACKGROUND) & (classes >= 0)
-    idx = np.argwhere(candidates)
-    if len(idx) == 0:
+    if not candidates.any():
         raise ComputationError("the model found no occupied voxel with a material; "
                                "is the splat empty or fully transparent?")
-    tree = cKDTree((idx + 0.5) / n)
-    _, nearest = tree.query(np.asarray(points_unit, dtype=np.float64), k=1)
-    vox = idx[nearest]
+    pts = np.asarray(points_unit, dtype=np.float64)
+    # The nearest voxel centre to a point is the voxel containing it, so a point inside a candidate
+    # voxel takes that voxel directly; only the others need the KD-tree over candidate centres.
+    vox = np.clip(np.floor(pts * n).astype(np.int64), 0, n - 1)
+    outside = ~candidates[vox[:, 0], vox[:, 1], vox[:, 2]] | (pts < 0).any(1) | (pts >= 1).any(1)
+    if outside.any():
+        idx = np.argwhere(candidates)
+        _, nearest = cKDTree((idx + 0.5) / n).query(pts[outside], k=1)
+        vox[outside] = idx[nearest]
     mat = classes[vox[:, 0], vox[:, 1], vox[:, 2]].astype(np.int32)
     phys = physical[:, vox[:, 0], vox[:, 1], vox[:, 2]].T.astype(np.float32)
     return mat, phys

@@ -9,7 +9,7 @@ import pytest
 
 from pixie_gs.diagnose.effects import registry
 from pixie_gs.diagnose.fit import _next_point
-from pixie_gs.diagnose.locate import locate, noise_sigma, residuals, rms_gap
+from pixie_gs.diagnose.locate import locate, noise_sigma
 from pixie_gs.diagnose.measured import load_measured, save_measured, tracks_from_arrays
 from pixie_gs.diagnose.score import bic, score_candidate
 from pixie_gs.diagnose.synthetic import HIDDEN_EFFECTS, make_measurement, toss_scene, two_part_block
@@ -146,9 +146,14 @@ def _diagnose(bed, effect, part, values, seed=1):
     return diagnose(bed["cloud"], bed["scene"], tracks, device="cpu", cache=bed["cache"])
 
 
-@pytest.mark.parametrize("effect, part, weak, strong", HIDDEN_EFFECTS, ids=[h[0] for h in HIDDEN_EFFECTS])
-def test_hidden_effect_is_named_first_and_gap_shrinks(loop_bed, effect, part, weak, strong):
-    d = _diagnose(loop_bed, effect, part, weak)
+HIDDEN_CASES = [(e, p, w, "weak") for e, p, w, _ in HIDDEN_EFFECTS] + \
+               [(e, (1 if e == "anchored_part" else p), s, "strong") for e, p, _, s in HIDDEN_EFFECTS]
+
+
+@pytest.mark.parametrize("effect, part, values, strength", HIDDEN_CASES,
+                         ids=[f"{c[0]}-{c[3]}" for c in HIDDEN_CASES])
+def test_hidden_effect_is_named_first_and_gap_shrinks(loop_bed, effect, part, values, strength):
+    d = _diagnose(loop_bed, effect, part, values)
     assert d.effect is not None, f"nothing found for hidden {effect}"
     assert d.effect.effect == effect, f"hidden {effect}, named {d.effect.label}"
     if part is not None:
@@ -188,6 +193,7 @@ def test_cli_diagnose_writes_improved_model_and_json(tmp_path, capsys):
     assert result["params"]["density_scale"] == pytest.approx(4.0, rel=0.15)
     assert result["gap_after"] <= 0.2 * result["gap_before"]
     assert [r["effect"] for r in result["ranking"]][0] == "part_density"
+    assert result["files"]["model"] == str(out / "model.ply")
     # the improved model: density of part 1 baked into the .ply, nothing else changed
     improved = read_splat(out / "model.ply")
     part = improved.get("part_id")

@@ -20,10 +20,12 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
         "DIR/gap.png and DIR/diagnose.rrd.",
         epilog="example: pixie diagnose model.ply measured.npz --scene scene.json --out diag/ --json",
     )
-    p.add_argument("model", metavar="MODEL.ply", help="annotated 3D Gaussian splat (material_id, E, nu, density)")
-    p.add_argument("measured", metavar="MEASURED.npz", help="measured tracks: t (T,), x (T,M,3) [, ids, visible]")
+    p.add_argument("model", metavar="MODEL.ply", nargs="?",
+                   help="annotated 3D Gaussian splat (material_id, E, nu, density)")
+    p.add_argument("measured", metavar="MEASURED.npz", nargs="?",
+                   help="measured tracks: t (T,), x (T,M,3) [, ids, visible]")
     p.add_argument("--scene", metavar="SCENE.json", help="scene the model was simulated in (default: drop preset)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
+    p.add_argument("--out", metavar="DIR", help="output directory (created if missing; required)")
     p.add_argument("--effects", metavar="A,B", help="only test these effects (default: the whole library; "
                    "`--effects list` prints it)")
     p.add_argument("--max-effects", type=int, default=2, metavar="K", help="add at most K effects in a chain (2)")
@@ -64,6 +66,12 @@ def run(args: argparse.Namespace) -> int:
         for effect in registry().values():
             print(f"{effect.name:16s} {effect.doc}")
         return 0
+    if not args.model or not args.measured or not args.out:
+        import sys
+
+        print("pixie diagnose: error: MODEL.ply, MEASURED.npz and --out DIR are required "
+              "(see `pixie diagnose --help`)", file=sys.stderr)
+        return 2  # a usage error, like argparse's
     effects = None
     if args.effects:
         effects = [e.strip() for e in args.effects.split(",") if e.strip()]
@@ -109,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
                 (out / name).unlink()  # a stale file from an earlier diagnosis
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    summary["files"] = {k: str(out / Path(v).name) for k, v in summary["files"].items()}
+    summary["files"] = {k: str(out / v) for k, v in summary["files"].items()}
     if args.json:
         print(json.dumps({k: summary[k] for k in ("effect", "part", "params", "gap_before", "gap_after",
                                                   "gap_reduction", "ranking", "chain", "noise_sigma",

@@ -169,8 +169,8 @@ def plot_gap(path: Path, diagnosis: Diagnosis, after: np.ndarray, regions: list[
               else "yellowgreen" if s.significant else "tab:grey" for s in ranking]
     ax.barh(np.arange(len(ranking))[::-1], scores, color=colors)
     ax.set_yticks(np.arange(len(ranking))[::-1], [s.label for s in ranking], fontsize=8)
-    ax.set_xlabel("ΔBIC vs model as given (green: chosen; light: significant alone)")
-    ax.set_title("which effect (round 1)")
+    ax.set_xlabel("ΔBIC vs the model as given")
+    ax.set_title("which effect (green: chosen, light: significant alone)", fontsize=10)
     if scores and max(scores) > 100:
         ax.set_xscale("symlog")
     fig.tight_layout()
@@ -223,14 +223,14 @@ def write_report(out_dir: Path, diagnosis: Diagnosis, input_cloud: SplatCloud, d
     gap_before = rms_gap(residuals(tr.x, diagnosis.base_pred, tr.visible), tr.visible)
     gap_after = rms_gap(residuals(tr.x, after, tr.visible), tr.visible)
     regions = region_table(tr, diagnosis.cloud, diagnosis.base_pred, after)
-    files = {k: str(v) for k, v in paths.items()}
+    files = {k: v.name for k, v in paths.items()}  # names inside out_dir
     if png:
-        files["plot"] = str(out_dir / "gap.png")
+        files["plot"] = "gap.png"
         plot_gap(out_dir / "gap.png", diagnosis, after, regions)
     if rrd:
-        files["recording"] = str(out_dir / "diagnose.rrd")
+        files["recording"] = "diagnose.rrd"
         record(out_dir / "diagnose.rrd", diagnosis, after)
-    files["report"] = str(out_dir / "report.json")
+    files["report"] = "report.json"
     result = summary(diagnosis, gap_before, gap_after, regions, files, seconds)
     with atomic_path(out_dir / "report.json", suffix=".json") as tmp:
         tmp.write_text(json.dumps({**result, **details(diagnosis)}, indent=2, default=_json_default) + "\n",

@@ -94,6 +94,8 @@ def load_checkpoint(path: str | Path | None = None, device: str = "cpu") -> Load
     except RuntimeError as exc:
         raise InputError(f"weights do not match the stored config ({str(exc).splitlines()[0][:120]})", path) from None
     model.to(device).eval()
+    if device == "cpu":  # channels-last 3D convolutions are ~15 % faster with oneDNN on CPU
+        model.to(memory_format=torch.channels_last_3d)
     return LoadedModel(model, config, FeatureSpec.from_dict(payload["features"]), dict(payload.get("meta", {})), str(path))
 
 

@@ -51,7 +51,7 @@ def run_model(loaded: LoadedModel, values, channel_names: list[str], occupied):
             with torch.autocast("cuda", dtype=torch.bfloat16):
                 logits, physical = loaded.model(x)
         else:
-            logits, physical = loaded.model(x)
+            logits, physical = loaded.model(x.contiguous(memory_format=torch.channels_last_3d))
     return classes_from_logits(logits.float(), occupied), physical.float().clamp(-1.5, 1.5)
 
 
