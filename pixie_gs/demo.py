@@ -48,7 +48,7 @@ DEMO_SCENE: dict[str, Any] = {
     "fixed": [{"region": {"min": [-1.0, -1.0, -0.1], "max": [1.0, 1.0, 0.03]}}],
     # caps the substeps a frame may take: parts stiffer than this allows are softened (and
     # reported), which bounds the run time whatever stiffness the model predicts
-    "solver": {"max_substeps_per_frame": 600},
+    "solver": {"max_substeps_per_frame": 400},
 }
 
 

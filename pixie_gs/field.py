@@ -14,8 +14,10 @@ sees at least α·exp(-½·(0.87/0.5)²) ≈ 0.22·α. `filter_voxels=0` gives t
 Per-voxel features are opacity-weighted means Σ w_i f_i / Σ w_i of per-Gaussian features
 (RGB, opacity, size, anisotropy, SH view-dependence energy, and extra float channels the file
 carries such as distilled CLIP features, never label attributes). The stencil of a Gaussian is the
-voxel box covering its `cutoff_sigma`-σ ellipsoid, capped at `max_radius_voxels`, so the cost grows
-with the number of Gaussians, not with N³ × Gaussians. The same torch code runs on CPU and CUDA.
+ball of voxels that can hold its `cutoff_sigma`-σ ellipsoid (radius cutoff·√λmax, capped at
+`max_radius_voxels`), and only voxels inside the ellipsoid are accumulated, so the cost grows with
+the number of Gaussians, not with N³ × Gaussians. The same torch code runs on CPU and CUDA; 3×3
+inverses and eigenvalues are closed-form so millions of Gaussians need no solver workspace.
 """
 from __future__ import annotations
 

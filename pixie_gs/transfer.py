@@ -18,8 +18,6 @@ def nearest_voxel_values(points_unit: np.ndarray, classes: np.ndarray, physical:
 
     `classes` (N,N,N), `physical` (3,N,N,N), `occupancy` (N,N,N) bool on the grid over [0,1]³.
     """
-    from scipy.spatial import cKDTree
-
     n = classes.shape[0]
     candidates = occupancy & (classes != BACKGROUND) & (classes >= 0)
     if not candidates.any():
@@ -31,6 +29,8 @@ def nearest_voxel_values(points_unit: np.ndarray, classes: np.ndarray, physical:
     vox = np.clip(np.floor(pts * n).astype(np.int64), 0, n - 1)
     outside = ~candidates[vox[:, 0], vox[:, 1], vox[:, 2]] | (pts < 0).any(1) | (pts >= 1).any(1)
     if outside.any():
+        from scipy.spatial import cKDTree  # imported only when needed (~0.7 s)
+
         idx = np.argwhere(candidates)
         _, nearest = cKDTree((idx + 0.5) / n).query(pts[outside], k=1)
         vox[outside] = idx[nearest]

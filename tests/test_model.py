@@ -163,3 +163,37 @@ def test_shipped_checkpoint_predicts_generated_ball_and_can(class_name, material
     mid, E, nu, rho = out.get_materials()
     assert np.mean(mid == material) > 0.95
     assert abs(np.median(np.log10(E)) - np.median(np.log10(true_E))) < 0.5
+
+
+def test_train_resume_and_evaluate_cli_on_a_generated_dataset(tmp_path, capsys):
+    """`pixie train` (1 epoch) → `--resume` to epoch 2 keeps epoch 1's history → `pixie evaluate` table."""
+    import json
+
+    from pixie_gs.cli.main import main
+
+    data = tmp_path / "data"
+    for split, count in (("train", 3), ("val", 2), ("test", 2)):
+        assert main(["generate", str(data), "--count", str(count), "--split", split, "--gaussians", "400",
+                     "--classes", "sport_balls,soda_cans", "-q"]) == 0
+    ckpt = tmp_path / "m.pt"
+    common = ["--device", "cpu", "--resolution", "16", "--base-channels", "4", "--multipliers", "1,2",
+              "--batch-size", "2", "-q"]
+    assert main(["train", str(data), "--out", str(ckpt), "--epochs", "1", *common]) == 0
+    first = load_checkpoint(ckpt).meta["history"]
+    assert [h["epoch"] for h in first] == [1]
+    assert main(["train", str(data), "--out", str(ckpt), "--epochs", "2", "--resume", *common]) == 0
+    state = torch.load(str(ckpt) + ".state.pt", weights_only=True)
+    history = json.loads(state["history_json"])
+    assert [h["epoch"] for h in history] == [1, 2] and history[0] == first[0]
+    assert state["step"] == 4  # 2 batches per epoch, 2 epochs
+    capsys.readouterr()
+    report = tmp_path / "metrics.json"
+    assert main(["evaluate", str(ckpt), str(data), "--split", "test", "--device", "cpu", "--json", str(report), "-q"]) == 0
+    table = capsys.readouterr().out
+    assert "mat.acc" in table and "per-class accuracy" in table
+    metrics = json.loads(report.read_text())
+    assert metrics["objects"] == 2 and metrics["gaussian"]["count"] > 500
+    assert 0.0 <= metrics["voxel"]["accuracy"] <= 1.0
+    assert metrics["voxel"]["mse_avg"] == pytest.approx(np.mean([metrics["voxel"][f"mse_{k}"]
+                                                                 for k in ("log_E", "nu", "log_rho")]))
+    assert main(["train", str(tmp_path / "nowhere"), "--out", str(tmp_path / "x.pt"), "--device", "cpu", "-q"]) == 1

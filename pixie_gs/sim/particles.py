@@ -20,9 +20,9 @@ class Particles:
 
     x (N,3) m, v (N,3) m/s, volume (N,) m³, E (N,) Pa, nu (N,), density (N,) kg/m³,
     material_id (N,) int32 (pixie_gs.materials ids 0–6), yield_stress (N,) Pa
-    (np.inf = no extra yield; metal and visco-plastic with np.inf yield at
-    scene.materials.metal_yield_strain·E (default 1e-3·E, typical of aluminium/steel); jelly
-    with a finite value keeps a permanent set beyond it), fixed (N,) bool (held in place),
+    (np.inf = no extra yield; metal with np.inf yields at scene.materials.metal_yield_strain·E,
+    default 1e-3·E, typical of aluminium/steel, visco-plastic likewise; jelly with a finite
+    value keeps a permanent set beyond it), fixed (N,) bool (held in place),
     part_id (N,) int32 (-1 = none), covariance optional (N,3,3) m² (the Gaussians' Σ; the
     solver only needs F, `advect_covariances` turns F into Σ').
     """

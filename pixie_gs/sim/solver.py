@@ -47,6 +47,7 @@ class MPMSolver:
     substeps_last_frame, particle_substeps (total particles × substeps, for throughput figures),
     stiffness_scale (≤ 1: factor applied to the stiffest parts' E to respect
     scene.solver.max_substeps_per_frame; 1 when nothing was softened).
+    The scene is read once, at construction; build a new solver to change it.
     """
 
     def __init__(self, particles: Particles, scene: Scene, device: str = "cpu") -> None:
