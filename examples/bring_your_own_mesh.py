@@ -19,14 +19,14 @@ FULL_GAUSSIANS, TINY_GAUSSIANS = 20_000, 4_000
 
 
 def default_mesh():
-    """An orange ball of radius 0.1 (a stand-in for your mesh) with per-vertex colours."""
+    """An orange ball of radius 0.1 with a white band (a stand-in for your mesh), vertex-coloured."""
     import numpy as np
     import trimesh
 
     ball = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
-    shade = 0.85 + 0.15 * (ball.vertices[:, 2:3] / 0.1)
-    ball.visual.vertex_colors = (np.hstack([0.95 * shade, 0.45 * shade, 0.1 * shade, np.ones_like(shade)])
-                                 * 255).clip(0, 255).astype(np.uint8)
+    stripe = np.abs(ball.vertices[:, 2]) < 0.015  # a white band around the equator, like a toy ball
+    colours = np.where(stripe[:, None], [240, 240, 235, 255], [240, 120, 30, 255])
+    ball.visual.vertex_colors = colours.astype(np.uint8)
     return ball
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, require_file
 from .progress import progress
 from .splat import SplatCloud, rgb_to_sh_dc, rotmat_to_quat
 
@@ -35,11 +35,7 @@ def load_mesh(path: str | Path) -> "trimesh.Trimesh":  # noqa: F821 (trimesh imp
     """
     import trimesh
 
-    path = Path(path)
-    if not path.exists():
-        raise InputError("no such file", path)
-    if path.is_dir():
-        raise InputError("is a directory, not a mesh file", path)
+    path = require_file(path, "a mesh file")
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise InputError(f"unsupported mesh type '{path.suffix}' (use {', '.join(MESH_SUFFIXES)})", path)
     try:

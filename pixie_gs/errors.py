@@ -26,3 +26,13 @@ class ComputationError(PixieError):
     """A computation that could not finish soundly, e.g. a diverging simulation (exit code 3)."""
 
     exit_code = 3
+
+
+def require_file(path: str | Path, kind: str) -> Path:
+    """`path` as a Path, or InputError when it is missing or a directory (`kind`: e.g. "a .ply file")."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError("no such file", path)
+    if path.is_dir():
+        raise InputError(f"is a directory, not {kind}", path)
+    return path

@@ -249,13 +249,20 @@ def cloud_tensors(cloud: SplatCloud, extra_names: list[str], device: str = "cpu"
     if rotation is not None:
         means = means @ rotation.T
         cov = rotation @ cov @ rotation.T
+    sh, extras = per_gaussian_channels(cloud, extra_names)
+    return GaussianTensors(t(means), t(cov), t(cloud.opacities), t(cloud.rgb()), t(sh), t(extras))
+
+
+def per_gaussian_channels(cloud: SplatCloud, extra_names: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """SH view-dependence energy ‖f_rest‖ (N,) and the named extra float channels (N, E); a channel
+    the cloud lacks is zero, so one checkpoint reads files with and without it."""
     sh = (np.linalg.norm(cloud.sh_rest.astype(np.float64), axis=1) if cloud.sh_rest.shape[1]
           else np.zeros(len(cloud)))
     extras = np.zeros((len(cloud), len(extra_names)), np.float32)
     for j, name in enumerate(extra_names):
         if name in cloud.extras:
             extras[:, j] = cloud.extras[name]
-    return GaussianTensors(t(means), t(cov), t(cloud.opacities), t(cloud.rgb()), t(sh), t(extras))
+    return sh.astype(np.float32), extras
 
 
 def prepare_gaussians(g: GaussianTensors, margin: float = 0.05):

@@ -15,7 +15,7 @@ import numpy as np
 from plyfile import PlyData, PlyElement
 
 from .atomic import atomic_path
-from .errors import InputError
+from .errors import InputError, require_file
 
 SH_C0 = 0.28209479177387814  # degree-0 real spherical harmonic: rgb = 0.5 + SH_C0 · f_dc
 MATERIAL_ATTRIBUTES = ("material_id", "E", "nu", "density")
@@ -345,11 +345,7 @@ def read_splat(path: str | Path) -> SplatCloud:
 
     Raises InputError (file name + problem) for anything that is not a usable splat.
     """
-    path = Path(path)
-    if not path.exists():
-        raise InputError("no such file", path)
-    if path.is_dir():
-        raise InputError("is a directory, not a .ply file", path)
+    path = require_file(path, "a .ply file")
     with open(path, "rb") as fh:
         magic = fh.read(4)
     if magic[:3] != b"ply":

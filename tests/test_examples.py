@@ -127,3 +127,26 @@ def test_demo_writes_everything_and_the_tree_sways_with_its_pot_fixed(tmp_path):
     assert result.anchored_max_displacement == 0.0  # pot and base do not move
     assert result.top_displacement[-1, 0] > 0.0  # the top moves downwind (+x) ...
     assert abs(result.top_displacement[-1, 0]) > 10 * abs(result.top_displacement[-1, 1])  # ... along the wind
+
+
+def test_subsample_per_cell_keeps_every_occupied_cell_and_caps_each():
+    """Known answer: a dense cluster is thinned to the cap, a sparse line keeps every point."""
+    from pixie_gs.demo import subsample_per_cell
+    from pixie_gs.sim.run import placement_transform
+    from pixie_gs.sim.scene import Scene
+    from pixie_gs.splat import SplatCloud
+
+    rng = np.random.default_rng(0)
+    blob = rng.uniform([0.4, 0.4, 0.8], [0.6, 0.6, 1.0], (5000, 3))  # many points per cell
+    line = np.stack([np.full(7, 0.5), np.full(7, 0.5), np.linspace(0.0, 0.78, 7)], axis=1)  # 13 cm apart
+    cloud = SplatCloud.from_arrays(np.concatenate([blob, line]).astype(np.float32))
+    scene = Scene.from_dict({"object": {"size_m": 1.0}, "domain": {"size_m": 2.0, "grid": 20}})  # 10 cm cells
+    keep = subsample_per_cell(cloud, scene, 3, seed=1)
+    np.testing.assert_array_equal(keep, subsample_per_cell(cloud, scene, 3, seed=1))  # deterministic
+    assert not np.array_equal(keep, subsample_per_cell(cloud, scene, 3, seed=2))
+    assert np.all(np.isin(np.arange(5000, 5007), keep))  # the thin line (1 point per cell) survives whole
+    world = placement_transform(cloud.means, scene).to_world(cloud.means)
+    cell = lambda idx: np.floor((world[idx] - scene.domain_origin()) / scene.dx).astype(int)  # noqa: E731
+    _, all_counts = np.unique(cell(np.arange(len(cloud))), axis=0, return_counts=True)
+    _, kept_counts = np.unique(cell(keep), axis=0, return_counts=True)
+    assert kept_counts.max() == 3 and len(kept_counts) == len(all_counts)  # every cell kept, none above 3

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, require_file
 from ..splat import SplatCloud
 
 MIN_TRACKED_POINTS = 10
@@ -150,11 +150,7 @@ def match_to_gaussians(x: np.ndarray, visible: np.ndarray, means: np.ndarray) ->
 
 def load_measured(path: str | Path, cloud: SplatCloud) -> MeasuredTracks:
     """Read and validate a measured `.npz`, aligning its points to `cloud`'s Gaussians."""
-    path = Path(path)
-    if not path.exists():
-        raise InputError("no such file", path)
-    if path.is_dir():
-        raise InputError("is a directory, not a .npz file", path)
+    path = require_file(path, "a .npz file")
     with open(path, "rb") as fh:
         if fh.read(4) != b"PK\x03\x04":
             raise InputError("not a .npz archive (expected NumPy arrays t (T,) and x (T,M,3))", path)

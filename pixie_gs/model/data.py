@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..field import extra_feature_names
+from ..field import extra_feature_names, per_gaussian_channels
 from ..materials import normalize_physical
 from ..progress import progress
 from ..splat import SplatCloud
@@ -38,12 +38,7 @@ class ObjectRecord:
 def record_from_cloud(cloud: SplatCloud, extra_names: list[str], name: str = "", class_name: str = "") -> ObjectRecord:
     """Compact arrays of a labelled cloud (InputError when labels are missing)."""
     mid, E, nu, rho = cloud.get_materials()
-    sh = (np.linalg.norm(cloud.sh_rest.astype(np.float64), axis=1) if cloud.sh_rest.shape[1]
-          else np.zeros(len(cloud)))
-    extras = np.zeros((len(cloud), len(extra_names)), np.float32)
-    for j, n in enumerate(extra_names):
-        if n in cloud.extras:
-            extras[:, j] = cloud.extras[n]
+    sh, extras = per_gaussian_channels(cloud, extra_names)
     return ObjectRecord(name, class_name, cloud.means.astype(np.float32), cloud.covariances().astype(np.float32),
                         cloud.opacities.astype(np.float32), cloud.rgb(), sh.astype(np.float32), extras,
                         mid.astype(np.int64), normalize_physical(E, nu, rho))
