@@ -39,7 +39,7 @@ def parser(doc: str, name: str) -> argparse.ArgumentParser:
     p.add_argument("--labels", choices=("predicted", "true"), default="predicted",
                    help="materials from the shipped checkpoint (predicted) or the generator's ground truth")
     p.add_argument("--checkpoint", default=None, help="material model checkpoint (default: the shipped one)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars or stage lines")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bars or stage lines")
     return p
 
 

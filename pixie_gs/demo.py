@@ -237,6 +237,7 @@ def run_scenario(cloud: SplatCloud, scene, out_dir: Path, frames: int, fps: floa
 def run_demo(out_dir: str | Path = "pixie_demo", settings: DemoSettings | None = None) -> DemoResult:
     """Annotate, simulate and picture the shipped potted tree; returns what was written."""
     from .annotate import annotate_cloud
+    from .devices import resolve_torch_device, resolve_warp_device
     from .materials import STATIONARY
     from .sim.scene import Scene
     from .splat import read_splat
@@ -244,6 +245,8 @@ def run_demo(out_dir: str | Path = "pixie_demo", settings: DemoSettings | None =
     s = settings or DemoSettings()
     if s.frames < 2:
         raise InputError(f"--frames must be ≥ 2 for an animation, got {s.frames}")
+    resolve_torch_device(s.device)  # a device this machine lacks stops before anything is written
+    resolve_warp_device(s.device)
     out = prepare_out_dir(out_dir)
     files = {"annotated": out / "tree_annotated.ply", "scene": out / "scene.json"}
     clock = time.perf_counter()

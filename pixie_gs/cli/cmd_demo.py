@@ -14,7 +14,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
         "checkpoint, simulates it swaying in a gust of wind with its pot held in place, and writes "
         "DIR/tree_annotated.ply, DIR/frames/frame_*.ply + tracks.npz, DIR/demo.rrd (rerun: RGB | material | "
         "log E side by side with a time slider), DIR/demo.gif and DIR/demo_strip.png (open without rerun) "
-        "and DIR/scene.json. Re-running replaces these files. About 1 minute on a 2-core CPU.",
+        "and DIR/scene.json. Re-running replaces these files. Under a minute on a 2-core CPU.",
         epilog="example: pixie demo --out pixie_demo && rerun pixie_demo/demo.rrd",
     )
     p.add_argument("--out", default="pixie_demo", metavar="DIR", help="output directory (default ./pixie_demo)")
