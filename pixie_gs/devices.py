@@ -6,6 +6,7 @@ import sys
 from .errors import InputError
 
 DEVICE_CHOICES = ("auto", "cpu", "cuda")
+DEVICE_HELP = "where to compute: cpu, cuda, or auto (cuda when a GPU is present; default)"
 _warp_ready = False
 
 

@@ -183,6 +183,18 @@ def test_atomic_path_leaves_nothing_on_failure_and_keeps_old_file(tmp_path: Path
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.ply"]
 
 
+def test_atomic_output_gets_the_users_usual_permissions(tmp_path: Path) -> None:
+    import os
+
+    umask = os.umask(0o022)
+    try:
+        with atomic_path(tmp_path / "out.ply") as tmp:
+            tmp.write_text("x")
+    finally:
+        os.umask(umask)
+    assert (tmp_path / "out.ply").stat().st_mode & 0o777 == 0o644
+
+
 def test_output_equal_to_input_is_refused_without_force(tmp_path: Path) -> None:
     src = write_table(tmp_path / "in.ply", make_table(n=5))
     with pytest.raises(InputError, match="--force"):

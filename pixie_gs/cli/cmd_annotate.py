@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..devices import DEVICE_CHOICES
+from ..devices import DEVICE_CHOICES, DEVICE_HELP
 
 UP_CHOICES = ("z", "y", "-y", "x", "-x", "-z")
 
@@ -17,8 +17,8 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     )
     p.add_argument("input", metavar="IN.ply", help="3D Gaussian splat")
     p.add_argument("output", metavar="OUT.ply", help="annotated splat to write")
-    p.add_argument("--checkpoint", default=None, help="model checkpoint (default: the shipped one)")
-    p.add_argument("--device", choices=DEVICE_CHOICES, default="auto")
+    p.add_argument("--checkpoint", default=None, metavar="CKPT", help="model checkpoint (default: the shipped one)")
+    p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help=DEVICE_HELP)
     p.add_argument("--up", choices=UP_CHOICES, default="z", help="axis of the splat that points up")
     p.add_argument("--rrd", default=None, metavar="FILE", help="rerun recording: splat by RGB, material, log E")
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")

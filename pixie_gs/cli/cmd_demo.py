@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..devices import DEVICE_CHOICES
+from ..devices import DEVICE_CHOICES, DEVICE_HELP
 from ..errors import InputError
 
 
@@ -18,8 +18,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
         epilog="example: pixie demo --out pixie_demo && rerun pixie_demo/demo.rrd",
     )
     p.add_argument("--out", default="pixie_demo", metavar="DIR", help="output directory (default ./pixie_demo)")
-    p.add_argument("--device", choices=DEVICE_CHOICES, default="auto",
-                   help="torch and Warp device (auto: cuda if present)")
+    p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help=DEVICE_HELP)
     p.add_argument("--frames", type=int, default=45, metavar="N",
                    help="frames incl. frame 0, at 15 frames/s (default 45 = 3 s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the per-cell particle choice (default 0)")

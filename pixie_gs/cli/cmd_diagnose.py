@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..devices import DEVICE_CHOICES
+from ..devices import DEVICE_CHOICES, DEVICE_HELP
 from ..errors import InputError
 
 
@@ -30,7 +30,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
                    "`--effects list` prints it)")
     p.add_argument("--max-effects", type=int, default=2, metavar="K", help="add at most K effects in a chain (2)")
     p.add_argument("--json", action="store_true", help="print one JSON object as the last line of stdout")
-    p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help="Warp device (auto: cuda if present)")
+    p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help=DEVICE_HELP)
     p.add_argument("--fill", action="store_true", help="fill solid interiors (as `pixie simulate --fill`)")
     p.add_argument("--max-particles", type=int, default=3000, metavar="N",
                    help="fit on a reduced model of at most N Gaussians (coarser grid), delta-corrected (3000)")

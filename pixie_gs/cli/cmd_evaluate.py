@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..devices import DEVICE_CHOICES
+from ..devices import DEVICE_CHOICES, DEVICE_HELP
 
 
 def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.ArgumentParser:
@@ -15,8 +15,8 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     )
     p.add_argument("checkpoint", metavar="CKPT", help="checkpoint from `pixie train` ('default' = the shipped one)")
     p.add_argument("data_dir", metavar="DATA_DIR", help="dataset made by `pixie generate`")
-    p.add_argument("--split", choices=["train", "val", "test"], default="test")
-    p.add_argument("--device", choices=DEVICE_CHOICES, default="auto")
+    p.add_argument("--split", choices=["train", "val", "test"], default="test", help="split to score (default: the held-out test split)")
+    p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help=DEVICE_HELP)
     p.add_argument("--limit", type=int, default=None, help="only the first K objects")
     p.add_argument("--workers", type=int, default=1, help="processes reading the dataset")
     p.add_argument("--json", default=None, metavar="FILE", help="also write the metrics as JSON")

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..devices import DEVICE_CHOICES
+from ..devices import DEVICE_CHOICES, DEVICE_HELP
 from ..errors import InputError
 
 PRESET_CHOICES = ("drop", "wind", "push")
@@ -27,7 +27,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     scene.add_argument("--preset", choices=PRESET_CHOICES, help="a shipped scene (default: drop)")
     p.add_argument("--frames", type=int, default=48, metavar="N", help="number of output frames incl. frame 0 (48)")
     p.add_argument("--fps", type=float, default=24.0, metavar="F", help="output frames per second (24)")
-    p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help="Warp device (auto: cuda if present)")
+    p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help=DEVICE_HELP)
     p.add_argument("--rrd", metavar="FILE", help="save a rerun recording of the run")
     p.add_argument("--spawn", action="store_true", help="stream the run live to a rerun viewer")
     p.add_argument("--fill", action="store_true", help="fill the enclosed interior of solid objects with particles")

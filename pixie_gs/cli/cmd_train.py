@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..devices import DEVICE_CHOICES
+from ..devices import DEVICE_CHOICES, DEVICE_HELP
 
 
 def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.ArgumentParser:
@@ -15,20 +15,20 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     )
     p.add_argument("data_dir", metavar="DATA_DIR", help="dataset made by `pixie generate` (train/ and val/ splits)")
     p.add_argument("--out", required=True, metavar="CKPT", help="checkpoint file to write (.pt)")
-    p.add_argument("--epochs", type=int, default=30)
-    p.add_argument("--device", choices=DEVICE_CHOICES, default="auto")
+    p.add_argument("--epochs", type=int, default=30, help="passes over the train split (default 30)")
+    p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help=DEVICE_HELP)
     p.add_argument("--time-budget-s", type=float, default=None, help="stop (and anneal the LR) within this wall time")
     p.add_argument("--resume", action="store_true", help="continue from CKPT.state.pt")
-    p.add_argument("--batch-size", type=int, default=8)
-    p.add_argument("--lr", type=float, default=2e-3)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--batch-size", type=int, default=8, help="objects per optimiser step (default 8)")
+    p.add_argument("--lr", type=float, default=2e-3, help="Adam learning rate (default 2e-3)")
+    p.add_argument("--seed", type=int, default=0, help="seed for initialisation, shuffling and augmentation")
     p.add_argument("--inputs", choices=["full", "rgb", "occupancy"], default="full",
                    help="input channels: every feature (default), occupancy+RGB, or occupancy only (ablation)")
-    p.add_argument("--base-channels", type=int, default=16)
+    p.add_argument("--base-channels", type=int, default=16, help="U-Net width at full resolution (default 16)")
     p.add_argument("--multipliers", default="1,2,4", help="U-Net width multipliers per level, e.g. 1,2,4")
-    p.add_argument("--res-blocks", type=int, default=1)
+    p.add_argument("--res-blocks", type=int, default=1, help="residual blocks per U-Net level (default 1)")
     p.add_argument("--resolution", type=int, default=64, help="grid cells per side (divisible by 2^(levels-1))")
-    p.add_argument("--no-augment", action="store_true")
+    p.add_argument("--no-augment", action="store_true", help="no yaw/flip/scale/colour augmentation")
     p.add_argument("--workers", type=int, default=1, help="processes reading the dataset")
     p.add_argument("--limit-train", type=int, default=None, help="use only the first K train objects")
     p.add_argument("--limit-val", type=int, default=None, help="use only the first K val objects")
