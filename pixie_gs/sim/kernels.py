@@ -27,15 +27,22 @@ def bspline_weights(fx: float) -> wp.vec3:
     return wp.vec3(0.5 * (1.5 - fx) * (1.5 - fx), 0.75 - (fx - 1.0) * (fx - 1.0), 0.5 * (fx - 0.5) * (fx - 0.5))
 
 
+@wp.func
+def stencil_of(xp: wp.vec3, grid: GridInfo):
+    """Lowest node (base) of the 3×3×3 stencil around world position `xp` and the position
+    relative to it in cells (fx ∈ [0.5, 1.5)³), shared by P2G and G2P."""
+    xg = (xp - grid.origin) * grid.inv_dx
+    base = wp.vec3i(int(xg[0] - 0.5), int(xg[1] - 0.5), int(xg[2] - 0.5))
+    return base, xg - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
+
+
 @wp.kernel
 def p2g(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33),
         stress: wp.array(dtype=wp.mat33), volume: wp.array(dtype=float), mass: wp.array(dtype=float),
         fixed: wp.array(dtype=wp.int32), grid: GridInfo, dt: float, grid_mass: wp.array3d(dtype=float),
         grid_momentum: wp.array3d(dtype=wp.vec3), grid_fixed: wp.array3d(dtype=float)):
     p = wp.tid()
-    xg = (x[p] - grid.origin) * grid.inv_dx
-    base = wp.vec3i(int(xg[0] - 0.5), int(xg[1] - 0.5), int(xg[2] - 0.5))
-    fx = xg - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
+    base, fx = stencil_of(x[p], grid)
     wx = bspline_weights(fx[0])
     wy = bspline_weights(fx[1])
     wz = bspline_weights(fx[2])
@@ -126,9 +133,7 @@ def g2p(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtyp
         v[p] = wp.vec3(0.0)
         C[p] = wp.mat33(0.0)
         return
-    xg = (x[p] - grid.origin) * grid.inv_dx
-    base = wp.vec3i(int(xg[0] - 0.5), int(xg[1] - 0.5), int(xg[2] - 0.5))
-    fx = xg - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
+    base, fx = stencil_of(x[p], grid)
     wx = bspline_weights(fx[0])
     wy = bspline_weights(fx[1])
     wz = bspline_weights(fx[2])
