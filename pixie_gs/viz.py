@@ -335,13 +335,15 @@ def read_recording_positions(rrd_path: str | Path, entity: str) -> list[tuple[fl
         if "Points3D:positions" not in names:
             continue
         col = batch.column("Points3D:positions")
-        times = batch.column(TIMELINE).to_pylist() if TIMELINE in names else [None] * batch.num_rows
+        # durations as integer nanoseconds: pyarrow's timedelta conversion rejects sub-µs values
+        times = (batch.column(TIMELINE).cast("int64").to_pylist() if TIMELINE in names
+                 else [None] * batch.num_rows)
         for i in range(batch.num_rows):
             cell = col[i]
             if not cell.is_valid:
                 continue
             t = times[i]
-            t_s = None if t is None else (t.total_seconds() if hasattr(t, "total_seconds") else float(t) * 1e-9)
+            t_s = None if t is None else float(t) * 1e-9
             xyz = np.asarray(cell.values.flatten().to_numpy(zero_copy_only=False), np.float32).reshape(-1, 3)
             rows.append((t_s, xyz))
     rows.sort(key=lambda r: -1.0 if r[0] is None else r[0])

@@ -104,3 +104,15 @@ def test_spawn_without_display_is_a_clear_error(tmp_path, monkeypatch):
     with pytest.raises(InputError, match="display"):
         viz.open_recording("pixie-test", rrd_path=tmp_path / "x.rrd", spawn=True)
     assert list(tmp_path.iterdir()) == []  # the pending .rrd was removed
+
+
+def test_positions_read_back_at_frame_times_that_are_not_whole_microseconds(tmp_path):
+    cloud = _cloud(10)
+    target = tmp_path / "fps15.rrd"
+    rec = viz.open_recording("pixie-test", rrd_path=target)
+    entities = viz.log_material_views(rec, cloud, time_s=0.0)
+    viz.log_positions(rec, entities, cloud.means + np.float32(1.0), time_s=1.0 / 15.0)
+    viz.close_recording(rec)
+    rows = viz.read_recording_positions(target, "splat/rgb")
+    assert [t for t, _ in rows] == pytest.approx([0.0, 1.0 / 15.0], abs=1e-9)
+    np.testing.assert_allclose(rows[1][1], cloud.means + 1.0, atol=1e-6)
