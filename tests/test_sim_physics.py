@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pixie_gs.errors import ComputationError, InputError
-from pixie_gs.materials import JELLY, METAL, SAND, STATIONARY
+from pixie_gs.materials import JELLY, METAL, SAND, SNOW, STATIONARY
 from pixie_gs.sim import MPMSolver, Particles, Scene, advect_covariances
 
 G = 9.81  # m/s²
@@ -42,6 +42,19 @@ def test_free_fall_without_ground_matches_half_g_t_squared():
     assert drop == pytest.approx(0.5 * G * sim.time_s ** 2, rel=0.01)
     # a free body stays undeformed: every particle moved by the same amount
     assert np.ptp(p.x[:, 2] - sim.positions()[:, 2]) < 1e-4
+
+
+def test_time_step_shrinks_as_snow_compacts_and_hardens():
+    """Snow's stiffness is E·exp(ξ(1 − Jp)); the CFL step must follow the hardened wave speed."""
+    scene = make_scene(domain={"size_m": 1.0, "grid": 32, "origin": [-0.5, -0.5, -0.5]}, ground={"enabled": False},
+                       gravity=[0, 0, 0])
+    sim = MPMSolver(small_block(scene, E=1e5, density=400.0, material_id=SNOW), scene)
+    dt_fresh = sim.dt
+    jp = np.ones(sim.n, np.float32)
+    jp[0] = 0.9  # one grain compacted by 10 %
+    sim.Jp.assign(jp)
+    xi = scene.materials.snow_hardening
+    assert sim.dt == pytest.approx(dt_fresh / np.sqrt(np.exp(xi * 0.1)), rel=1e-5)
 
 
 def test_substeps_follow_the_cfl_of_the_stiffest_moving_material():

@@ -17,7 +17,7 @@ wp.config.log_level = wp.LOG_WARNING
 
 from ..devices import resolve_warp_device  # noqa: E402
 from ..errors import ComputationError, InputError
-from ..materials import MATERIAL_NAMES, METAL, STATIONARY, VISCOPLASTIC
+from ..materials import MATERIAL_NAMES, METAL, SNOW, STATIONARY, VISCOPLASTIC
 from ..progress import stage
 from . import kernels
 from .constitutive import NO_YIELD
@@ -173,10 +173,17 @@ class MPMSolver:
     # ------------------------------------------------------------------ time stepping
     @property
     def max_wave_speed(self) -> float:
-        """Fastest elastic wave (m/s) among moving particles, after any stiffness cap."""
+        """Fastest elastic wave (m/s) among moving particles, after any stiffness cap and with
+        snow's current hardening (E·exp(ξ(1 − Jp)): compacted snow stiffens and needs smaller dt)."""
         if not self._moving.any():
             return 0.0
-        return float((self._wave_speed * np.sqrt(self._scale))[self._moving].max())
+        c = self._wave_speed * np.sqrt(self._scale)
+        snow = self._moving & (self.material_id == SNOW)
+        if snow.any():
+            jp = self.Jp.numpy()[snow].astype(np.float64)
+            c = c.copy()
+            c[snow] *= np.sqrt(np.exp(self.scene.materials.snow_hardening * np.maximum(0.0, 1.0 - jp)))
+        return float(c[self._moving].max())
 
     @property
     def dt(self) -> float:
