@@ -126,6 +126,42 @@ def subsample_per_cell(cloud: SplatCloud, scene, per_cell: int, seed: int = 0) -
     return np.sort(order[rank < per_cell])
 
 
+class Carrier:
+    """Moves Gaussians that were not simulated with their nearest simulated one (at frame 0),
+    through its deformation: x = x0 + (x_p − x_p0) + (F_p − I)·(x0 − x_p0), Σ' = F_p Σ F_pᵀ, so
+    written frames hold every Gaussian of the input while the simulation runs on a per-cell
+    subset. Written as a displacement, so a Gaussian whose carrier has not moved keeps its bytes."""
+
+    def __init__(self, all_means: np.ndarray, simulated_means: np.ndarray,
+                 all_materials: np.ndarray | None = None, simulated_materials: np.ndarray | None = None) -> None:
+        """With material ids, each Gaussian is carried by the nearest simulated Gaussian of its own
+        material (a pot Gaussian never rides on the trunk beside it), else by the nearest one."""
+        from scipy.spatial import cKDTree
+
+        _, self.anchor = cKDTree(simulated_means).query(all_means)
+        if all_materials is not None and simulated_materials is not None:
+            for m in np.unique(all_materials):
+                mine, theirs = all_materials == m, np.flatnonzero(simulated_materials == m)
+                if len(theirs):
+                    self.anchor[mine] = theirs[cKDTree(simulated_means[theirs]).query(all_means[mine])[1]]
+        self.all_means = np.asarray(all_means, np.float32)
+        self.anchor_start = np.asarray(simulated_means, np.float32)[self.anchor]
+        self.offset = self.all_means - self.anchor_start
+
+    def carry(self, state):
+        """The FrameState of all Gaussians from that of the simulated ones (x_world: the
+        carrying particle's world position)."""
+        from dataclasses import replace
+
+        moved = state.x[self.anchor] - self.anchor_start
+        if state.F is None:
+            return replace(state, x=self.all_means + moved, x_world=state.x_world[self.anchor])
+        F = state.F[self.anchor]
+        stretch = np.einsum("nij,nj->ni", F, self.offset) - self.offset
+        return replace(state, x=(self.all_means + moved + stretch).astype(np.float32),
+                       x_world=state.x_world[self.anchor], F=F)
+
+
 def render_views(x_world: np.ndarray, colours: list[np.ndarray], size_px: int, azimuth_deg: float = -90.0,
                  elevation_deg: float = 12.0) -> list[list[np.ndarray]]:
     """Pictures [frame][view] of positions x_world (T,N,3) (z up), one view per colouring in
@@ -194,18 +230,24 @@ def run_scenario(cloud: SplatCloud, scene, out_dir: Path, frames: int, fps: floa
         files["gif"] = out_dir / "run.gif"
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
+    full_cloud = cloud
+    carrier = None
     if particles_per_cell is not None:
-        full = len(cloud)
-        cloud = cloud.subset(subsample_per_cell(cloud, scene, particles_per_cell, seed))
-        stage(f"simulating {len(cloud)} of {full} Gaussians (≤ {particles_per_cell} per "
-              f"{scene.dx * 100:.3g} cm cell) for {(frames - 1) / fps:.2f} s")
-    writer = FrameWriter(files["frames"], cloud, force=True)
+        cloud = full_cloud.subset(subsample_per_cell(full_cloud, scene, particles_per_cell, seed))
+        carrier = Carrier(full_cloud.means, cloud.means, full_cloud.get("material_id"), cloud.get("material_id"))
+        stage(f"simulating {len(cloud)} of {len(full_cloud)} Gaussians (≤ {particles_per_cell} per "
+              f"{scene.dx * 100:.3g} cm cell; the others move with their nearest simulated one) "
+              f"for {(frames - 1) / fps:.2f} s")
+    writer = FrameWriter(files["frames"], full_cloud, force=True)
     rec = viz.open_recording(app_id, rrd_path=files["rrd"])
     x_world = np.empty((frames, len(cloud), 3), np.float32)
+    x_out = np.empty((frames, len(full_cloud), 3), np.float32)
     radii = viz.splat_radii(cloud, scale=scene.object.size_m / _longest_side(cloud))
 
     def on_frame(state: FrameState) -> None:
-        writer.write(state)
+        full_state = state if carrier is None else carrier.carry(state)
+        writer.write(full_state)
+        x_out[state.index] = full_state.x
         x_world[state.index] = state.x_world
         if state.index == 0:
             _log_world(rec)
@@ -215,7 +257,7 @@ def run_scenario(cloud: SplatCloud, scene, out_dir: Path, frames: int, fps: floa
 
     try:
         traj = simulate(cloud, scene, frames, fps, device=device, on_frame=on_frame, fill=fill)
-        writer.finish(traj.t, traj.x)
+        writer.finish(traj.t, x_out)
         seconds["simulate"] = time.perf_counter() - clock
         viz.send_layout(rec, fps=fps, shared=["world"])
         viz.close_recording(rec)

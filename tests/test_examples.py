@@ -117,7 +117,13 @@ def test_demo_writes_everything_and_the_tree_sways_with_its_pot_fixed(tmp_path):
     assert annotated.has_materials()
     assert result.material_counts.get("stationary", 0) > 0  # the model finds the pot
     assert len(sorted(files["frames"].glob("frame_*.ply"))) == 4
-    assert np.load(files["frames"] / "tracks.npz")["x"].shape == (4, result.simulated, 3)
+    tracks = np.load(files["frames"] / "tracks.npz")["x"]
+    assert tracks.shape == (4, result.gaussians, 3)  # every Gaussian is in the frames, simulated or carried
+    np.testing.assert_array_equal(tracks[0], annotated.means)
+    pot = annotated.get("material_id") == 6
+    np.testing.assert_array_equal(tracks[-1][pot], annotated.means[pot])  # carried pot Gaussians stay put too
+    last = read_splat(sorted(files["frames"].glob("frame_*.ply"))[-1])
+    np.testing.assert_array_equal(last.means, tracks[-1])
     with Image.open(files["gif"]) as gif:
         assert gif.n_frames == 4
     assert files["strip"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -127,6 +133,28 @@ def test_demo_writes_everything_and_the_tree_sways_with_its_pot_fixed(tmp_path):
     assert result.anchored_max_displacement == 0.0  # pot and base do not move
     assert result.top_displacement[-1, 0] > 0.0  # the top moves downwind (+x) ...
     assert abs(result.top_displacement[-1, 0]) > 10 * abs(result.top_displacement[-1, 1])  # ... along the wind
+
+
+def test_carrier_moves_unsimulated_gaussians_with_their_nearest_particle():
+    """Known answer: under a homogeneous F and a translation, carried Gaussians land where the
+    same affine motion puts them, and their deformation gradient is the carrier's."""
+    from pixie_gs.demo import Carrier
+    from pixie_gs.sim.run import FrameState
+
+    rng = np.random.default_rng(1)
+    simulated = rng.uniform(-1, 1, (50, 3)).astype(np.float32)
+    everyone = np.concatenate([simulated, simulated[:20] + rng.normal(0, 0.01, (20, 3)).astype(np.float32)])
+    F = np.array([[1.1, 0.2, 0.0], [0.0, 0.9, 0.1], [0.05, 0.0, 1.2]], np.float32)
+    shift = np.array([0.3, -0.2, 0.5], np.float32)
+    moved = simulated @ F.T + shift
+    state = FrameState(index=1, time_s=0.1, x=moved, x_world=moved, F=np.tile(F, (50, 1, 1)))
+    carried = Carrier(everyone, simulated).carry(state)
+    np.testing.assert_allclose(carried.x, everyone @ F.T + shift, atol=1e-5)
+    np.testing.assert_array_equal(carried.F, np.tile(F, (70, 1, 1)))
+    # with materials, a Gaussian rides on the nearest simulated Gaussian of its own material
+    near = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], np.float32)
+    carrier = Carrier(np.array([[0.1, 0.0, 0.0]], np.float32), near, np.array([1]), np.array([0, 1]))
+    assert carrier.anchor.tolist() == [1]
 
 
 def test_subsample_per_cell_keeps_every_occupied_cell_and_caps_each():
