@@ -79,6 +79,7 @@ class MPMSolver:
         self._nu = particles.nu.astype(np.float64)
         self._wave_speed = p_wave_speed(particles.E, particles.nu, particles.density)
         self._moving = ~fixed
+        self._moving_snow = self._moving & (self.material_id == SNOW)  # hardening changes their CFL
 
         ys = particles.yield_stress.astype(np.float64).copy()
         self._yield_from_strain = np.zeros(self.n, bool)  # yield = strain · E (scaled with a stiffness cap)
@@ -178,7 +179,7 @@ class MPMSolver:
         if not self._moving.any():
             return 0.0
         c = self._wave_speed * np.sqrt(self._scale)
-        snow = self._moving & (self.material_id == SNOW)
+        snow = self._moving_snow
         if snow.any():
             jp = self.Jp.numpy()[snow].astype(np.float64)
             c = c.copy()
