@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .errors import require_finite_result
 from .progress import stage
 from .splat import SplatCloud
 
@@ -39,4 +40,6 @@ def annotate_cloud(cloud: SplatCloud, checkpoint: str | Path | None = None, devi
     mat, phys = nearest_voxel_values(mgrid.grid.extra["means_unit"], mgrid.classes, mgrid.physical,
                                      mgrid.occupancy)
     out = write_materials(cloud, mat, phys)
+    require_finite_result({name: out.get(name) for name in ("E", "nu", "density")}, "predicted materials",
+                          cloud.source)
     return (out, mgrid) if return_grid else out

@@ -5,6 +5,8 @@ Exit codes: 0 success, 1 bad input (a file or value the user gave), 2 usage (arg
 """
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 
@@ -29,10 +31,36 @@ class ComputationError(PixieError):
 
 
 def require_file(path: str | Path, kind: str) -> Path:
-    """`path` as a Path, or InputError when it is missing or a directory (`kind`: e.g. "a .ply file")."""
+    """`path` as a Path, or InputError when it is missing, a directory or not a regular file
+    (a FIFO, socket or device would block or never end; `kind`: e.g. "a .ply file")."""
     path = Path(path)
-    if not path.exists():
-        raise InputError("no such file", path)
-    if path.is_dir():
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise InputError("no such file", path) from None
+    except OSError as exc:
+        raise InputError(f"cannot read ({exc.strerror or exc})", path) from None
+    if stat.S_ISDIR(mode):
         raise InputError(f"is a directory, not {kind}", path)
+    if not stat.S_ISREG(mode):
+        raise InputError(f"is not a regular file (a pipe, socket or device), not {kind}", path)
+    if not os.access(path, os.R_OK):
+        raise InputError("cannot read (permission denied)", path)
     return path
+
+
+def require_finite_result(values: dict[str, object], what: str, path: str | Path | None = None) -> None:
+    """ComputationError (exit 3) naming the first quantity of `values` (name → array or number)
+    that holds NaN or inf: a result that is not finite is never written or reported as success."""
+    import numpy as np
+
+    for name, value in values.items():
+        arr = np.asarray(value, dtype=np.float64) if not isinstance(value, np.ndarray) else value
+        if arr.dtype.kind not in "fc":
+            continue
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            first = np.unravel_index(int(np.argmax(bad)), arr.shape) if arr.ndim else ()
+            where = f", first at index {first[0] if len(first) == 1 else first}" if arr.ndim else ""
+            raise ComputationError(f"{what}: {name} is not finite (NaN/inf) in {int(bad.sum())} "
+                                   f"value(s){where}; nothing was written", path)

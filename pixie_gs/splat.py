@@ -1,7 +1,9 @@
 """SplatCloud: the one container of 3D Gaussians that every pixie-gs stage reads and extends.
 
-Reads INRIA-format 3DGS `.ply` files (binary little/big endian or ascii) with plyfile and writes
-binary little endian. Every vertex property is kept in its original order and bytes; properties
+`read_splat` / `write_splat` are the entry points every command uses: they read any format in
+pixie_gs.formats (INRIA 3DGS PLY, SuperSplat compressed PLY, antimatter15 .splat, Niantic .spz),
+detected by content, and write by the output name (INRIA PLY unless it ends in .splat, .spz or
+.compressed.ply). Every PLY vertex property is kept in its original order and bytes; properties
 pixie-gs does not interpret (normals, features, ids…) travel verbatim in `extras`, and stages add
 their results (e.g. `material_id`, `E`, `nu`, `density`) as further named per-Gaussian attributes.
 """
@@ -12,15 +14,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from plyfile import PlyData, PlyElement
 
-from .atomic import atomic_path
-from .errors import InputError, require_file
+from .errors import InputError
 
 SH_C0 = 0.28209479177387814  # degree-0 real spherical harmonic: rgb = 0.5 + SH_C0 · f_dc
 MATERIAL_ATTRIBUTES = ("material_id", "E", "nu", "density")
 LABEL_ATTRIBUTES = MATERIAL_ATTRIBUTES + ("part_id",)
-_VALID_REST_COUNTS = {0: 0, 9: 1, 24: 2, 45: 3}  # number of f_rest properties -> SH degree
+_VALID_REST_COUNTS = {0: 0, 9: 1, 24: 2, 45: 3}
+# Bounds of `SplatCloud.validate` beyond which a value is absurd, whatever the file's unit.
+POSITION_LIMIT = 1e9  # |x|: beyond, float32 centres cannot resolve any Gaussian size
+LOG_SCALE_LIMIT = 40.0  # |log σ|: σ² = exp(2 log σ) must stay a normal float32 (1e-35 … 5e34)
+OPACITY_LOGIT_LIMIT = 1e6
+SH_LIMIT = 1e6  # |f_dc|, |f_rest|: real splats stay within ±10; the SH energy must fit float32
+FEATURE_LIMIT = 1e15  # extra float channels summed into the feature grid (float32 accumulators)
+E_LIMIT_PA = 1e13  # Young's modulus: diamond is ~1.1e12 Pa
+DENSITY_LIMIT_KG_M3 = 1e5  # osmium is 22 590 kg/m³  # number of f_rest properties -> SH degree
 _CORE_GROUPS = {
     "means": ("x", "y", "z"),
     "log_scales": ("scale_0", "scale_1", "scale_2"),
@@ -116,6 +124,7 @@ class SplatCloud:
     extras: dict[str, np.ndarray] = field(default_factory=dict)
     property_order: list[str] = field(default_factory=list)
     source: str | None = None
+    source_format: str | None = None  # format it was read from (pixie_gs.formats.FORMATS), if read
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -271,7 +280,7 @@ class SplatCloud:
             means=self.means.copy(), log_scales=self.log_scales.copy(), rotations=self.rotations.copy(),
             opacity_logits=self.opacity_logits.copy(), sh_dc=self.sh_dc.copy(), sh_rest=self.sh_rest.copy(),
             extras={k: v.copy() for k, v in self.extras.items()}, property_order=list(self.property_order),
-            source=self.source,
+            source=self.source, source_format=self.source_format,
         )
 
     def subset(self, index: np.ndarray) -> "SplatCloud":
@@ -280,7 +289,7 @@ class SplatCloud:
             means=self.means[index], log_scales=self.log_scales[index], rotations=self.rotations[index],
             opacity_logits=self.opacity_logits[index], sh_dc=self.sh_dc[index], sh_rest=self.sh_rest[index],
             extras={k: v[index] for k, v in self.extras.items()}, property_order=list(self.property_order),
-            source=self.source,
+            source=self.source, source_format=self.source_format,
         )
 
     @staticmethod
@@ -305,21 +314,80 @@ class SplatCloud:
         return out
 
     # ------------------------------------------------------------------ validation
+    def invalid_gaussians(self) -> list[tuple[str, np.ndarray]]:
+        """(problem, bad mask (N,)) for every checked property with at least one bad Gaussian.
+
+        Checked: positions (finite, |x| ≤ 1e9, no subnormals), log scales (finite, |log σ| ≤ 40 so
+        σ² stays a normal float32), rotations (finite, non-zero), opacity, f_dc, f_rest (finite,
+        |c| ≤ 1e6), float extras the feature grid reads (finite, ≤ 1e15) and, when present, the
+        material attributes (known material_id, 0 < E ≤ 1e13 Pa, 0 ≤ ν < 0.5, 0 < ρ ≤ 1e5 kg/m³).
+        """
+        from .field import extra_feature_names
+        from .materials import BACKGROUND, MATERIAL_NAMES
+
+        found: list[tuple[str, np.ndarray]] = []
+
+        def check(name: str, arr: np.ndarray, limit: float, extra_bad: np.ndarray | None = None,
+                  range_text: str | None = None) -> None:
+            a = np.asarray(arr, np.float64).reshape(len(arr), -1)
+            nonfinite = ~np.isfinite(a).all(axis=1)
+            with np.errstate(invalid="ignore"):
+                absurd = (np.abs(a) > limit).any(axis=1)
+            if extra_bad is not None:
+                absurd |= extra_bad
+            if nonfinite.any():
+                found.append((f"non-finite {name} (NaN/inf)", nonfinite | absurd))
+            elif absurd.any():
+                found.append((f"out-of-range {name} ({range_text or f'|value| > {limit:g}'})", absurd))
+
+        pos = np.asarray(self.means, np.float64).reshape(len(self.means), -1)
+        with np.errstate(invalid="ignore"):
+            subnormal = ((pos != 0) & (np.abs(pos) < np.finfo(np.float32).tiny)).any(axis=1)
+        check("position", self.means, POSITION_LIMIT, subnormal, f"|x| > {POSITION_LIMIT:g} or subnormal")
+        check("scale", self.log_scales, LOG_SCALE_LIMIT, None, f"|log σ| > {LOG_SCALE_LIMIT:g}")
+        q = np.asarray(self.rotations, np.float64).reshape(len(self.rotations), -1)
+        with np.errstate(invalid="ignore", over="ignore"):
+            zero = ~(np.linalg.norm(q, axis=1) > 1e-12)
+        if (zero | ~np.isfinite(q).all(axis=1)).any():
+            found.append(("zero-length or non-finite rotation quaternion", zero | ~np.isfinite(q).all(axis=1)))
+        check("opacity", self.opacity_logits, OPACITY_LOGIT_LIMIT)
+        check("f_dc", self.sh_dc, SH_LIMIT)
+        if self.sh_rest.shape[1]:
+            check("f_rest", self.sh_rest, SH_LIMIT)
+        for name in extra_feature_names(self):
+            check(name, self.extras[name], FEATURE_LIMIT)
+        if "material_id" in self.extras:
+            known = [k for k in MATERIAL_NAMES if k != BACKGROUND]
+            bad = ~np.isin(np.asarray(self.extras["material_id"], np.float64), np.array(known, np.float64))
+            if bad.any():
+                found.append((f"unknown material_id (known: {', '.join(map(str, known))})", bad))
+        ranges = {"E": (False, E_LIMIT_PA, "0 < E ≤ 1e13 Pa"), "nu": (True, 0.5, "0 ≤ nu < 0.5"),
+                  "density": (False, DENSITY_LIMIT_KG_M3, "0 < density ≤ 1e5 kg/m³")}
+        for name, (zero_ok, hi, text) in ranges.items():
+            if name in self.extras:
+                v = np.asarray(self.extras[name], np.float64)
+                with np.errstate(invalid="ignore"):
+                    outside = ((v < 0) if zero_ok else (v <= 0)) | ((v >= hi) if name == "nu" else (v > hi))
+                check(name, v, np.inf, outside, text)
+        return found
+
     def validate(self) -> None:
-        """Raise InputError naming the file for empty clouds, non-finite values or zero quaternions."""
+        """Raise InvalidGaussiansError (an InputError naming the file, the property, how many
+        Gaussians and the first index) for any NaN/inf/absurd value; InputError when empty."""
         src = self.source or "<splat>"
         if len(self.means) == 0:
             raise InputError("has zero vertices", src)
-        if not np.isfinite(self.means).all():
-            bad = int(np.argmax(~np.isfinite(self.means).all(axis=1)))
-            raise InputError(f"non-finite position (NaN/inf) at vertex {bad}", src)
-        if not np.isfinite(self.log_scales).all():
-            bad = int(np.argmax(~np.isfinite(self.log_scales).all(axis=1)))
-            raise InputError(f"non-finite scale (NaN/inf) at vertex {bad}", src)
-        norms = np.linalg.norm(self.rotations.astype(np.float64), axis=1)
-        if not (np.isfinite(norms) & (norms > 1e-12)).all():
-            bad = int(np.argmax(~(np.isfinite(norms) & (norms > 1e-12))))
-            raise InputError(f"zero-length or non-finite rotation quaternion at vertex {bad}", src)
+        problems = self.invalid_gaussians()
+        if problems:
+            name, bad = problems[0]
+            mask = np.zeros(len(self), bool)
+            for _, b in problems:
+                mask |= b
+            more = f"; {len(problems) - 1} more properties are bad too" if len(problems) > 1 else ""
+            raise InvalidGaussiansError(
+                f"{name} in {int(bad.sum())} of {len(self)} Gaussians, first at vertex {int(np.argmax(bad))}"
+                f"{more} ({int(mask.sum())} Gaussians in all; fix the file or pass --drop-invalid to remove them)",
+                src, cloud=self, mask=mask)
 
     # ------------------------------------------------------------------ I/O
     @classmethod
@@ -328,6 +396,37 @@ class SplatCloud:
 
     def write(self, path: str | Path) -> None:
         write_splat(self, path)
+
+
+class InvalidGaussiansError(InputError):
+    """Some Gaussians of a cloud hold NaN/inf/absurd values; `cloud` and `mask` (N,) say which,
+    so a caller asked to (`--drop-invalid`) can remove them instead of failing."""
+
+    def __init__(self, message: str, path: str | Path | None, cloud: "SplatCloud", mask: np.ndarray) -> None:
+        super().__init__(message, path)
+        self.cloud = cloud
+        self.mask = mask
+
+
+def read_splat_valid(path: str | Path, drop_invalid: bool = False) -> SplatCloud:
+    """`read_splat(path)`; with `drop_invalid`, Gaussians with invalid values are removed (and
+    how many is said on stderr) instead of failing. All of them invalid is still an error."""
+    import sys
+
+    try:
+        return read_splat(path)
+    except InvalidGaussiansError as exc:
+        if not drop_invalid:
+            raise
+        kept = exc.cloud.subset(~exc.mask)
+        if len(kept) == 0:
+            raise InputError(f"every one of its {len(exc.mask)} Gaussians has invalid values; "
+                             "nothing left after --drop-invalid", path) from None
+        names = ", ".join(name for name, _ in exc.cloud.invalid_gaussians())
+        print(f"[pixie] {path}: dropped {int(exc.mask.sum())} of {len(exc.mask)} Gaussians with invalid "
+              f"values ({names}); {len(kept)} kept", file=sys.stderr, flush=True)
+        kept.validate()
+        return kept
 
 
 def rgb_to_sh_dc(rgb: np.ndarray) -> np.ndarray:
@@ -341,58 +440,14 @@ def _is_extra(name: str) -> bool:
 
 
 def read_splat(path: str | Path) -> SplatCloud:
-    """Read a 3DGS `.ply` (binary either endian, or ascii) into a validated SplatCloud.
+    """Read a splat in any supported format (detected by content) into a validated SplatCloud.
 
-    Raises InputError (file name + problem) for anything that is not a usable splat.
+    Raises InputError (file name + problem, one line) for anything that is not a usable splat;
+    `cloud.source_format` records the format found.
     """
-    path = require_file(path, "a .ply file")
-    with open(path, "rb") as fh:
-        magic = fh.read(4)
-    if magic[:3] != b"ply":
-        raise InputError("not a PLY file (missing 'ply' magic)", path)
-    try:
-        ply = PlyData.read(str(path))
-    except Exception as exc:  # plyfile raises several types for malformed or short files
-        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        if "early end" in text.lower() or "truncat" in text.lower() or "expected" in text.lower():
-            raise InputError(f"truncated or malformed PLY data ({text})", path) from None
-        raise InputError(f"cannot parse PLY ({text})", path) from None
-    if "vertex" not in [el.name for el in ply.elements]:
-        raise InputError("has no 'vertex' element", path)
-    data = ply["vertex"].data
-    names = list(data.dtype.names or ())
-    required = [p for group in _CORE_GROUPS.values() for p in group]
-    missing = [p for p in required if p not in names]
-    if missing:
-        raise InputError(f"missing required vertex properties: {', '.join(missing)}", path)
-    rest_names = [p for p in names if p.startswith("f_rest_")]
-    expected_rest = [f"f_rest_{i}" for i in range(len(rest_names))]
-    if len(rest_names) not in _VALID_REST_COUNTS or sorted(rest_names, key=_rest_index) != expected_rest:
-        raise InputError(
-            f"has {len(rest_names)} f_rest properties; a 3DGS file has 0, 9, 24 or 45 (f_rest_0…f_rest_N-1)",
-            path,
-        )
+    from .formats import read_any
 
-    def columns(props: tuple[str, ...] | list[str]) -> np.ndarray:
-        out = np.empty((len(data), len(props)), dtype=np.float32)
-        for j, p in enumerate(props):
-            out[:, j] = data[p]
-        return out
-
-    cloud = SplatCloud(
-        means=columns(_CORE_GROUPS["means"]),
-        log_scales=columns(_CORE_GROUPS["log_scales"]),
-        rotations=columns(_CORE_GROUPS["rotations"]),
-        opacity_logits=columns(_CORE_GROUPS["opacity_logits"])[:, 0].copy(),
-        sh_dc=columns(_CORE_GROUPS["sh_dc"]),
-        sh_rest=columns(expected_rest),
-        extras={p: np.ascontiguousarray(data[p]).astype(data.dtype[p].newbyteorder("=")) for p in names
-                if _is_extra(p)},
-        property_order=names,
-        source=str(path),
-    )
-    cloud.validate()
-    return cloud
+    return read_any(path)
 
 
 def _rest_index(name: str) -> int:
@@ -400,37 +455,16 @@ def _rest_index(name: str) -> int:
     return int(m.group(1)) if m else -1
 
 
-def _column(cloud: SplatCloud, name: str) -> np.ndarray:
-    for attr, group in _CORE_GROUPS.items():
-        if name in group:
-            arr = getattr(cloud, attr)
-            return arr if arr.ndim == 1 else arr[:, group.index(name)]
-    if name.startswith("f_rest_"):
-        return cloud.sh_rest[:, _rest_index(name)]
-    return cloud.extras[name]
-
-
 def to_structured(cloud: SplatCloud) -> np.ndarray:
     """The vertex table as a little-endian structured array in the cloud's property order."""
-    order = list(cloud.property_order) or cloud._default_order()
-    present = set(order)
-    order += [f"f_rest_{i}" for i in range(cloud.sh_rest.shape[1]) if f"f_rest_{i}" not in present]
-    order += [k for k in cloud.extras if k not in present]
-    order = [n for n in order if not n.startswith("f_rest_") or _rest_index(n) < cloud.sh_rest.shape[1]]
-    order = [n for n in order if not _is_extra(n) or n in cloud.extras]
-    dtypes = []
-    for name in order:
-        dt = cloud.extras[name].dtype if name in cloud.extras else np.dtype(np.float32)
-        dtypes.append((name, dt.newbyteorder("<")))
-    table = np.empty(len(cloud), dtype=dtypes)
-    for name in order:
-        table[name] = _column(cloud, name)
-    return table
+    from .formats.inria_ply import to_structured as _to_structured
+
+    return _to_structured(cloud)
 
 
-def write_splat(cloud: SplatCloud, path: str | Path) -> None:
-    """Write `cloud` as binary little-endian 3DGS `.ply`, atomically (temp file + rename)."""
-    cloud.validate()
-    element = PlyElement.describe(to_structured(cloud), "vertex")
-    with atomic_path(path, suffix=".ply.tmp") as tmp:
-        PlyData([element], text=False, byte_order="<").write(str(tmp))
+def write_splat(cloud: SplatCloud, path: str | Path, fmt: str | None = None) -> None:
+    """Write `cloud` atomically (temp file + rename): binary little-endian 3DGS `.ply` unless the
+    name ends in .splat, .spz or .compressed.ply (or `fmt` names a format of pixie_gs.formats)."""
+    from .formats import write_any
+
+    write_any(cloud, path, fmt)

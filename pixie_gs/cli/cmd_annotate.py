@@ -22,6 +22,8 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--up", choices=UP_CHOICES, default="z", help="axis of the splat that points up")
     p.add_argument("--rrd", default=None, metavar="FILE", help="rerun recording: splat by RGB, material, log E")
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")
+    p.add_argument("--drop-invalid", action="store_true",
+                   help="remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
     p.set_defaults(func=run)
     return p
 
@@ -33,10 +35,10 @@ def run(args: argparse.Namespace) -> int:
     from ..atomic import check_distinct_output
     from ..materials import MATERIAL_NAMES
     from ..progress import stage
-    from ..splat import read_splat, write_splat
+    from ..splat import read_splat_valid, write_splat
 
     check_distinct_output(args.input, args.output, args.force)
-    cloud = read_splat(args.input)
+    cloud = read_splat_valid(args.input, args.drop_invalid)
     out = annotate_cloud(cloud, args.checkpoint, args.device, args.up)
     if args.rrd:
         from ..viz import log_material_views, recording, send_layout

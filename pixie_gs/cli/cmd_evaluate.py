@@ -29,6 +29,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..atomic import atomic_path
     from ..devices import resolve_torch_device
+    from ..errors import require_finite_result
     from ..model.checkpoint import load_checkpoint
     from ..model.evaluate import evaluate_split
     from ..model.metrics import format_table
@@ -36,8 +37,18 @@ def run(args: argparse.Namespace) -> int:
     device = resolve_torch_device(args.device)
     loaded = load_checkpoint(None if args.checkpoint == "default" else args.checkpoint, device)
     summary = evaluate_split(loaded, args.data_dir, args.split, device, args.limit, args.workers)
+    require_finite_result(_numbers(summary), "evaluation metrics", args.checkpoint)
     print(format_table(summary))
     if args.json:
         with atomic_path(args.json, suffix=".tmp") as tmp:
             tmp.write_text(json.dumps(summary, indent=1))
     return 0
+
+
+def _numbers(tree, prefix: str = "") -> dict[str, float]:
+    """Every float in a nested dict/list of metrics, keyed by its dotted path."""
+    if isinstance(tree, dict):
+        return {k: v for key, sub in tree.items() for k, v in _numbers(sub, f"{prefix}{key}.").items()}
+    if isinstance(tree, (list, tuple)):
+        return {k: v for i, sub in enumerate(tree) for k, v in _numbers(sub, f"{prefix}{i}.").items()}
+    return {prefix.rstrip("."): float(tree)} if isinstance(tree, float) else {}

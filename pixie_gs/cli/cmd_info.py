@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from ..materials import MATERIAL_NAMES
-from ..splat import read_splat
+from ..splat import read_splat_valid
 
 
 def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.ArgumentParser:
@@ -17,13 +17,15 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     )
     p.add_argument("input", metavar="IN.ply", help="3D Gaussian splat file")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    p.add_argument("--drop-invalid", action="store_true",
+                   help="remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
     p.set_defaults(func=run)
     return p
 
 
-def summarize(path: str) -> dict:
+def summarize(path: str, drop_invalid: bool = False) -> dict:
     """A JSON-ready summary of the splat at `path`."""
-    cloud = read_splat(path)
+    cloud = read_splat_valid(path, drop_invalid)
     lo, hi = cloud.bounds()
     info: dict = {
         "file": path,
@@ -49,7 +51,7 @@ def summarize(path: str) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    info = summarize(args.input)
+    info = summarize(args.input, args.drop_invalid)
     if args.json:
         print(json.dumps(info))
         return 0

@@ -32,6 +32,8 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--spawn", action="store_true", help="stream the run live to a rerun viewer")
     p.add_argument("--fill", action="store_true", help="fill the enclosed interior of solid objects with particles")
     p.add_argument("--force", action="store_true", help="overwrite earlier frames in DIR")
+    p.add_argument("--drop-invalid", action="store_true",
+                   help="remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
     p.set_defaults(func=run)
     return p
 
@@ -51,13 +53,13 @@ def run(args: argparse.Namespace) -> int:
     from ..progress import stage
     from ..sim.frames import FrameWriter
     from ..sim.run import FrameState, material_arrays, placement_transform, simulate
-    from ..splat import read_splat
+    from ..splat import read_splat_valid
 
     if args.frames < 1:
         raise InputError(f"--frames must be ≥ 1, got {args.frames}")
     if not args.fps > 0:
         raise InputError(f"--fps must be > 0, got {args.fps:g}")
-    cloud = read_splat(args.input)
+    cloud = read_splat_valid(args.input, args.drop_invalid)
     material_arrays(cloud)  # one-line error before anything is created
     scene = load_scene(args)
     if args.rrd:

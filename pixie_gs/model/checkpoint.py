@@ -83,11 +83,7 @@ def load_checkpoint(path: str | Path | None = None, device: str = "cpu") -> Load
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for foreign or damaged files
         raise InputError(f"not a readable torch checkpoint ({str(exc).splitlines()[0][:120]})", path) from None
-    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
-        raise InputError(f"not a pixie-gs material checkpoint (format must be '{FORMAT}')", path)
-    if payload.get("normalization") != normalization_ranges():
-        raise InputError("checkpoint uses different (E, nu, density) normalisation ranges than this pixie-gs", path)
-    config = ModelConfig.from_dict(payload["config"])
+    config, features = validate_payload(payload, path)
     model = MaterialUNet(config)
     try:
         model.load_state_dict(payload["state_dict"])
@@ -96,7 +92,111 @@ def load_checkpoint(path: str | Path | None = None, device: str = "cpu") -> Load
     model.to(device).eval()
     if device == "cpu":  # channels-last 3D convolutions are ~15 % faster with oneDNN on CPU
         model.to(memory_format=torch.channels_last_3d)
-    return LoadedModel(model, config, FeatureSpec.from_dict(payload["features"]), dict(payload.get("meta", {})), str(path))
+    meta = payload.get("meta")
+    return LoadedModel(model, config, features, dict(meta) if isinstance(meta, dict) else {}, str(path))
+
+
+# Sane ranges of a checkpoint's numbers: a damaged or hostile payload is refused before any allocation.
+RESOLUTION_RANGE = (8, 512)  # feature grid cells per side
+CHANNELS_RANGE = (1, 1024)  # projector and U-Net widths
+MULTIPLIER_RANGE = (1, 64)
+MAX_LEVELS = 6
+MAX_RES_BLOCKS = 16
+
+
+def validate_payload(payload: object, path: str | Path) -> tuple[ModelConfig, FeatureSpec]:
+    """Check a loaded checkpoint dict against the schema (types, ranges, sizes, finite weights,
+    a memory estimate); return its (ModelConfig, FeatureSpec) or raise a one-line InputError."""
+    import math
+
+    import torch
+
+    from ..field import BASE_FEATURES, DENSITY_CHANNELS
+    from ..limits import require_memory
+    from ..materials import NUM_CLASSES
+
+    def bad(msg: str) -> InputError:
+        return InputError(f"damaged checkpoint: {msg}", path)
+
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise InputError(f"not a pixie-gs material checkpoint (format must be '{FORMAT}')", path)
+    version = payload.get("format_version")
+    if isinstance(version, bool) or not isinstance(version, int) or not 1 <= version <= FORMAT_VERSION:
+        raise bad(f"format_version must be an integer 1..{FORMAT_VERSION}, got {version!r:.40}")
+    missing = [k for k in ("config", "features", "normalization", "state_dict") if k not in payload]
+    if missing:
+        raise bad(f"missing {', '.join(missing)}")
+    if payload["normalization"] != normalization_ranges():
+        raise InputError("checkpoint uses different (E, nu, density) normalisation ranges than this pixie-gs", path)
+    cfg, feat, weights = payload["config"], payload["features"], payload["state_dict"]
+    for name, value in (("config", cfg), ("features", feat), ("state_dict", weights)):
+        if not isinstance(value, dict):
+            raise bad(f"'{name}' must be a mapping, got {type(value).__name__}")
+
+    def integer(d: dict, key: str, lo: int, hi: int, where: str) -> int:
+        v = d.get(key)
+        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+            raise bad(f"{where}.{key} must be an integer {lo}..{hi}, got {v!r:.40}")
+        return v
+
+    def number(d: dict, key: str, lo: float, hi: float, where: str) -> float:
+        v = d.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+            raise bad(f"{where}.{key} must be a number in [{lo:g}, {hi:g}], got {v!r:.40}")
+        return float(v)
+
+    def names(d: dict, key: str, where: str, allow_empty: bool) -> list[str]:
+        v = d.get(key)
+        if (not isinstance(v, (list, tuple)) or not all(isinstance(x, str) and 0 < len(x) <= 200 for x in v)
+                or (not v and not allow_empty) or len(v) > 4096):
+            raise bad(f"{where}.{key} must be a list of channel names, got {v!r:.60}")
+        return list(v)
+
+    extra_names = names(feat, "extra_names", "features", allow_empty=True)
+    features = FeatureSpec(integer(feat, "resolution", *RESOLUTION_RANGE, "features"),
+                           number(feat, "filter_voxels", 0.0, 10.0, "features"),
+                           number(feat, "margin", 0.0, 0.45, "features"), tuple(extra_names))
+    inputs = names(cfg, "input_channels", "config", allow_empty=False)
+    known = set(DENSITY_CHANNELS + BASE_FEATURES) | set(extra_names)
+    unknown = [c for c in inputs if c not in known]
+    if unknown:
+        raise bad(f"config.input_channels names unknown channel '{unknown[0]:.40}'")
+    mult = cfg.get("multipliers", [1, 2, 4])
+    if (not isinstance(mult, list) or not 1 <= len(mult) <= MAX_LEVELS
+            or not all(isinstance(m, int) and not isinstance(m, bool) and MULTIPLIER_RANGE[0] <= m <= MULTIPLIER_RANGE[1]
+                       for m in mult)):
+        raise bad(f"config.multipliers must be 1..{MAX_LEVELS} integers in {MULTIPLIER_RANGE}, got {mult!r:.60}")
+    defaults = ModelConfig(input_channels=inputs)
+    ints = {}
+    for key, lo, hi in (("projector_hidden", *CHANNELS_RANGE), ("projector_out", *CHANNELS_RANGE),
+                        ("base_channels", *CHANNELS_RANGE), ("res_blocks", 0, MAX_RES_BLOCKS),
+                        ("num_classes", NUM_CLASSES, NUM_CLASSES), ("num_physical", 3, 3)):
+        ints[key] = integer({key: cfg.get(key, getattr(defaults, key))}, key, lo, hi, "config")
+    dropout = number({"dropout": cfg.get("dropout", 0.0)}, "dropout", 0.0, 0.99, "config")
+    if features.resolution % (2 ** (len(mult) - 1)):
+        raise bad(f"features.resolution {features.resolution} is not divisible by 2^{len(mult) - 1} "
+                  f"({len(mult)} U-Net levels)")
+    config = ModelConfig(input_channels=inputs, multipliers=list(mult), dropout=dropout, **ints)
+    # weights: every entry a tensor, floating ones finite, shapes those of the config (checked on the
+    # meta device, so a hostile config allocates nothing)
+    for key, value in weights.items():
+        if not isinstance(key, str) or not isinstance(value, torch.Tensor):
+            raise bad(f"state_dict entry {key!r:.40} is not a named tensor")
+        if value.is_floating_point() and not bool(torch.isfinite(value).all()):
+            raise bad(f"weight '{key}' holds NaN or inf ({int((~torch.isfinite(value)).sum())} values)")
+    with torch.device("meta"):
+        shapes = {k: tuple(v.shape) for k, v in MaterialUNet(config).state_dict().items()}
+    stored = {k: tuple(v.shape) for k, v in weights.items()}
+    if shapes != stored:
+        diff = sorted(set(shapes) ^ set(stored)) or [k for k in shapes if shapes[k] != stored[k]]
+        raise bad(f"weights do not match the stored config (first difference: '{diff[0]:.60}')")
+    n = features.resolution ** 3
+    widest = ints["base_channels"] * max(mult)
+    activations = 4 * n * (len(known) + 2 * ints["projector_hidden"] + ints["projector_out"]
+                           + 4 * ints["base_channels"] * mult[0]) + 4 * (n // 8) * 4 * widest
+    require_memory(activations + 4 * sum(math.prod(s) for s in shapes.values()),
+                   f"the checkpoint's {features.resolution}³ grid and network", path)
+    return config, features
 
 
 def state_path(checkpoint: str | Path) -> Path:
