@@ -1,0 +1,252 @@
+"""Splat formats: decoding checked by independent plain decoders and hand-verified values,
+round trips within each format's quantisation, detection by content, strict PLY parsing."""
+from __future__ import annotations
+
+import math
+import shutil
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from plyfile import PlyData, PlyElement
+
+from pixie_gs.errors import InputError
+from pixie_gs.formats import detect_format, read_any, write_any
+from pixie_gs.formats import compressed_ply
+from pixie_gs.splat import SH_C0, SplatCloud, read_splat, write_splat
+
+DATA = Path(__file__).parent / "data"
+GUITAR = DATA / "guitar_slice.compressed.ply"  # 768 Gaussians of a real SuperSplat capture (MIT, see README)
+
+
+def random_cloud(n: int = 1000, rest: int = 0, seed: int = 0, extras: bool = False) -> SplatCloud:
+    """Gaussians in a 2 m box with varied sizes, colours, opacities and rotations."""
+    rng = np.random.default_rng(seed)
+    cloud = SplatCloud.from_arrays(
+        rng.uniform(-1.0, 1.0, (n, 3)), log_scales=rng.uniform(-6.0, -1.0, (n, 3)),
+        rotations=rng.normal(size=(n, 4)), opacity_logits=rng.uniform(-5.0, 5.0, n),
+        rgb=rng.uniform(0.0, 1.0, (n, 3)), sh_rest=rng.uniform(-0.9, 0.9, (n, rest)))
+    if extras:
+        cloud.set_materials(rng.integers(0, 7, n), rng.uniform(1e3, 1e9, n), np.full(n, 0.3), np.full(n, 500))
+    return cloud
+
+
+def quat_angle(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    """Rotation angle (rad) between unit quaternions, sign-insensitive."""
+    a = q1 / np.linalg.norm(q1, axis=1, keepdims=True)
+    b = q2 / np.linalg.norm(q2, axis=1, keepdims=True)
+    return 2.0 * np.arccos(np.clip(np.abs(np.sum(a * b, axis=1)), 0.0, 1.0))
+
+
+# ------------------------------------------------------------------ compressed PLY: a real file
+def plain_decode_compressed(path: Path) -> dict[str, np.ndarray]:
+    """Independent decoder written from the published layout, one Gaussian at a time."""
+    raw = path.read_bytes()
+    end = raw.index(b"end_header\n") + len(b"end_header\n")
+    lines = raw[:end].decode().splitlines()
+    n_chunks = int(next(l for l in lines if l.startswith("element chunk")).split()[2])
+    n = int(next(l for l in lines if l.startswith("element vertex")).split()[2])
+    chunks = [struct.unpack_from("<18f", raw, end + 72 * c) for c in range(n_chunks)]
+    base = end + 72 * n_chunks
+    out = {k: [] for k in ("xyz", "log_scale", "quat", "rgb", "alpha")}
+    for i in range(n):
+        pos, rot, scl, col = struct.unpack_from("<4I", raw, base + 16 * i)
+        c = chunks[i // 256]
+        t = [(pos >> 21) / 2047.0, ((pos >> 11) & 1023) / 1023.0, (pos & 2047) / 2047.0]
+        out["xyz"].append([c[k] + (c[k + 3] - c[k]) * t[k] for k in range(3)])
+        t = [(scl >> 21) / 2047.0, ((scl >> 11) & 1023) / 1023.0, (scl & 2047) / 2047.0]
+        out["log_scale"].append([c[6 + k] + (c[9 + k] - c[6 + k]) * t[k] for k in range(3)])
+        small = [(((rot >> s) & 1023) / 1023.0 - 0.5) * math.sqrt(2.0) for s in (20, 10, 0)]
+        big = math.sqrt(max(0.0, 1.0 - sum(v * v for v in small)))
+        q = list(small)
+        q.insert(rot >> 30, big)  # the largest component goes back at its stored index (w, x, y, z)
+        out["quat"].append(q)
+        bytes4 = [(col >> 24) & 255, (col >> 16) & 255, (col >> 8) & 255, col & 255]
+        out["rgb"].append([c[12 + k] + (c[15 + k] - c[12 + k]) * bytes4[k] / 255.0 for k in range(3)])
+        out["alpha"].append(bytes4[3] / 255.0)
+    return {k: np.array(v) for k, v in out.items()}
+
+
+def test_real_compressed_slice_decodes_like_an_independent_decoder() -> None:
+    cloud = read_splat(GUITAR)
+    ref = plain_decode_compressed(GUITAR)
+    assert cloud.source_format == "compressed_ply" and len(cloud) == 768 and cloud.sh_degree == 0
+    np.testing.assert_allclose(cloud.means, ref["xyz"], atol=1e-6)
+    np.testing.assert_allclose(cloud.log_scales, ref["log_scale"], atol=1e-5)
+    np.testing.assert_allclose(cloud.rotations, ref["quat"], atol=1e-6)
+    np.testing.assert_allclose(cloud.rgb(), np.clip(ref["rgb"], 0, 1), atol=1e-5)
+    np.testing.assert_allclose(cloud.opacities, np.clip(ref["alpha"], 1e-17, 1 - 1e-7), atol=1e-6)
+
+
+def test_real_compressed_slice_values_checked_by_hand() -> None:
+    """Gaussian 0 of the guitar slice, decoded by hand from its bytes (comments show the working)."""
+    raw = GUITAR.read_bytes()
+    end = raw.index(b"end_header\n") + 11
+    chunk0 = struct.unpack_from("<18f", raw, end)
+    pos, rot, scl, col = struct.unpack_from("<4I", raw, end + 3 * 72)
+    # packed_position 0x{pos:08x}: x = bits 31..21, y = bits 20..11, z = bits 10..0
+    qx, qy, qz = pos >> 21, (pos >> 11) & 0x3FF, pos & 0x7FF
+    cloud = read_splat(GUITAR)
+    expect_x = chunk0[0] + (chunk0[3] - chunk0[0]) * qx / 2047
+    expect_y = chunk0[1] + (chunk0[4] - chunk0[1]) * qy / 1023
+    expect_z = chunk0[2] + (chunk0[5] - chunk0[2]) * qz / 2047
+    assert cloud.means[0] == pytest.approx([expect_x, expect_y, expect_z], abs=1e-6)
+    # the capture sits in the chunk's box, and the whole slice lies in the guitar's published box
+    lo, hi = cloud.bounds()
+    assert (lo >= np.array([-0.66, -4.3, -0.53]) - 0.05).all() and (hi <= np.array([0.83, 0.09, 0.93]) + 0.05).all()
+    # alpha byte / 255 is the opacity
+    assert cloud.opacities[0] == pytest.approx((col & 0xFF) / 255, abs=1e-6)
+    # unit quaternions (the largest component is rebuilt from the three stored ones)
+    np.testing.assert_allclose(np.linalg.norm(cloud.rotations, axis=1), 1.0, atol=1e-5)
+    assert int(rot >> 30) == int(np.argmax(np.abs(cloud.rotations[0])))
+
+
+def chunk_ranges(values: np.ndarray) -> np.ndarray:
+    """Per-256-row chunk (max − min) of `values`, repeated per row (what the format quantises over)."""
+    n = len(values)
+    out = np.empty_like(values, dtype=np.float64)
+    for s in range(0, n, 256):
+        v = values[s:s + 256].astype(np.float64)
+        out[s:s + 256] = v.max(axis=0) - v.min(axis=0)
+    return out
+
+
+def test_compressed_round_trip_within_quantisation(tmp_path: Path) -> None:
+    cloud = random_cloud(1000, rest=9, extras=True)
+    write_splat(cloud, tmp_path / "a.compressed.ply")
+    assert detect_format(tmp_path / "a.compressed.ply") == "compressed_ply"
+    compressed_ply.write(cloud, tmp_path / "b.ply", keep_order=True)
+    back = read_splat(tmp_path / "b.ply")
+    assert back.source_format == "compressed_ply" and back.sh_degree == 1 and not back.extras
+    # 11/10/11-bit unorm over each chunk's range: |error| ≤ range / (2·(2^bits − 1)) (+ float32 rounding)
+    steps = np.array([2047.0, 1023.0, 2047.0])
+    pos_bound = chunk_ranges(cloud.means) / (2 * steps) + 1e-6
+    assert (np.abs(back.means - cloud.means) <= pos_bound).all()
+    scale_bound = chunk_ranges(cloud.log_scales) / (2 * steps) + 1e-5
+    assert (np.abs(back.log_scales - cloud.log_scales) <= scale_bound).all()
+    # colour: 8 bits over the chunk's rgb range; opacity: 8 bits over [0, 1]
+    rgb = 0.5 + SH_C0 * cloud.sh_dc.astype(np.float64)
+    assert (np.abs((0.5 + SH_C0 * back.sh_dc) - rgb) <= chunk_ranges(rgb) / 510 + 1e-5).all()
+    assert np.abs(back.opacities - cloud.opacities).max() <= 0.5 / 255 + 1e-6
+    # rotation: three 10-bit components of step √2/1023 are each off by ≤ ε = √2/2046 (|d| ≤ √3·ε); the
+    # rebuilt largest one (≥ 1/2) by ≤ √3·|d|, so |q' − q| ≤ 2·√3·ε and the angle 2·|q' − q| ≤ 4·√3·ε ≈ 0.0048 rad
+    assert quat_angle(back.rotations, cloud.rotations).max() <= 4 * math.sqrt(3) * math.sqrt(2) / 2046 + 1e-4
+    # SH rest: 8 bits over [-4, 4]: |error| ≤ 4/255
+    assert np.abs(back.sh_rest - cloud.sh_rest).max() <= 4 / 255 + 1e-6
+    # the default writer reorders along a Morton curve; the values are the same Gaussians
+    default = read_splat(tmp_path / "a.compressed.ply")
+    _, order = compressed_ply.encode(cloud)
+    assert sorted(order) == list(range(len(cloud)))
+    assert np.abs(default.means - cloud.means[order]).max() <= 2.0 / 1023
+
+
+def test_compressed_to_ply_and_back_keeps_the_real_bytes(tmp_path: Path) -> None:
+    """Real file → INRIA PLY → compressed (file order): every packed value comes back within one step."""
+    cloud = read_splat(GUITAR)
+    write_splat(cloud, tmp_path / "g.ply")
+    ply = read_splat(tmp_path / "g.ply")
+    assert ply.source_format == "inria_ply"
+    compressed_ply.write(ply, tmp_path / "g2.compressed.ply", keep_order=True)
+    back = read_splat(tmp_path / "g2.compressed.ply")
+    steps = np.array([2047.0, 1023.0, 2047.0])
+    assert (np.abs(back.means - cloud.means) <= chunk_ranges(cloud.means) / (2 * steps) + 1e-6).all()
+    assert np.abs(back.opacities - cloud.opacities).max() <= 0.5 / 255 + 1e-6
+    assert quat_angle(back.rotations, cloud.rotations).max() <= 4 * math.sqrt(3) * math.sqrt(2) / 2046 + 1e-4
+
+
+# ------------------------------------------------------------------ strict INRIA PLY
+def write_inria(path: Path, n: int = 40, text: bool = False) -> Path:
+    binary = path.with_suffix(".bin.ply") if text else path
+    random_cloud(n).write(binary)
+    if text:
+        table = np.array(PlyData.read(str(binary))["vertex"].data)
+        PlyData([PlyElement.describe(table, "vertex")], text=True).write(str(path))
+    return path
+
+
+def edit_vertex_count(path: Path, new_count: int) -> None:
+    raw = path.read_bytes()
+    end = raw.index(b"end_header")
+    head = raw[:end].decode()
+    old = next(l for l in head.splitlines() if l.startswith("element vertex"))
+    path.write_bytes(head.replace(old, f"element vertex {new_count}").encode() + raw[end:])
+
+
+@pytest.mark.parametrize("text", [False, True])
+@pytest.mark.parametrize("delta,needle", [(+1, "truncated"), (-1, "longer than its header")])
+def test_vertex_count_disagreeing_with_data_is_an_input_error(tmp_path: Path, text: bool, delta: int,
+                                                              needle: str) -> None:
+    path = write_inria(tmp_path / "c.ply", 40, text)
+    edit_vertex_count(path, 40 + delta)
+    with pytest.raises(InputError) as err:
+        read_splat(path)
+    assert needle in str(err.value) and str(path) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_list_property_on_vertex_is_a_one_line_error(tmp_path: Path) -> None:
+    table = np.empty(3, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("opacity", "f4"), ("ids", "O")])
+    for k in ("x", "y", "z", "opacity"):
+        table[k] = 0.0
+    table["ids"] = [np.array([1, 2], np.int32)] * 3
+    PlyData([PlyElement.describe(table, "vertex", val_types={"ids": "i4"})]).write(str(tmp_path / "l.ply"))
+    proc = subprocess.run([sys.executable, "-m", "pixie_gs", "info", str(tmp_path / "l.ply")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "list property 'ids'" in lines[0]
+
+
+# ------------------------------------------------------------------ detection by content
+def test_detection_ignores_extensions(tmp_path: Path) -> None:
+    cloud = random_cloud(300)
+    written = {}
+    for fmt in ("inria_ply", "compressed_ply", "splat", "spz"):
+        path = tmp_path / f"scene_{fmt}.bin"  # no telling extension
+        write_any(cloud, path, fmt)
+        written[fmt] = path
+    shutil.copy(written["splat"], tmp_path / "looks.ply")
+    shutil.copy(written["spz"], tmp_path / "looks.splat")
+    shutil.copy(written["compressed_ply"], tmp_path / "looks.spz")
+    assert {fmt: detect_format(p) for fmt, p in written.items()} == {f: f for f in written}
+    assert detect_format(tmp_path / "looks.ply") == "splat"
+    assert detect_format(tmp_path / "looks.splat") == "spz"
+    assert detect_format(tmp_path / "looks.spz") == "compressed_ply"
+    assert read_any(tmp_path / "looks.ply").source_format == "splat"
+
+
+def _unknown_files(tmp_path: Path) -> dict[str, tuple[Path, str]]:
+    import gzip
+
+    cases = {}
+    p = tmp_path / "model.splat"
+    p.write_bytes(b"glTF" + struct.pack("<II", 2, 100) + bytes(88))
+    cases["glb"] = (p, "glTF binary (mesh), not a splat: use `pixie convert")
+    p = tmp_path / "notes.spz"
+    p.write_bytes(gzip.compress(b"just some text, no magic here"))
+    cases["gzip"] = (p, "is gzip but not .spz")
+    p = tmp_path / "points.ply"
+    pts = np.zeros(4, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1")])
+    PlyData([PlyElement.describe(pts, "vertex")]).write(str(p))
+    cases["point cloud"] = (p, "PLY point cloud without Gaussian properties")
+    p = tmp_path / "random.ply"
+    p.write_bytes(bytes(range(7, 107)))
+    cases["unknown"] = (p, "unknown format (first bytes")
+    p = tmp_path / "empty.splat"
+    p.write_bytes(b"")
+    cases["empty"] = (p, "is empty")
+    return cases
+
+
+def test_unknown_formats_give_one_line_naming_what_was_found(tmp_path: Path) -> None:
+    for label, (path, needle) in _unknown_files(tmp_path).items():
+        with pytest.raises(InputError) as err:
+            read_splat(path)
+        assert needle in str(err.value) and str(path) in str(err.value), (label, str(err.value))
+        assert "\n" not in str(err.value)
+    path, needle = _unknown_files(tmp_path)["glb"]
+    proc = subprocess.run([sys.executable, "-m", "pixie_gs", "info", str(path)], capture_output=True, text=True)
+    assert proc.returncode == 1 and proc.stdout == "" and len(proc.stderr.strip().splitlines()) == 1
+    assert needle in proc.stderr
