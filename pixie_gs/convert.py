@@ -42,6 +42,8 @@ def load_mesh(path: str | Path) -> "trimesh.Trimesh":  # noqa: F821 (trimesh imp
         loaded = trimesh.load(str(path), process=False)
     except Exception as exc:  # trimesh raises many types for malformed files
         text = str(exc).splitlines()[0] if str(exc).strip() else type(exc).__name__
+        if isinstance(exc, ImportError):  # trimesh reaches for an optional text-encoding detector on garbage
+            text = f"contents are not a readable {path.suffix.lower()} file (binary garbage or an unknown text encoding)"
         raise InputError(f"cannot read mesh ({text[:200]})", path) from None
     meshes = _triangle_meshes(loaded)
     if not meshes:

@@ -426,6 +426,10 @@ def read_splat_valid(path: str | Path, drop_invalid: bool = False) -> SplatCloud
         print(f"[pixie] {path}: dropped {int(exc.mask.sum())} of {len(exc.mask)} Gaussians with invalid "
               f"values ({names}); {len(kept)} kept", file=sys.stderr, flush=True)
         kept.validate()
+        if kept.source_format is None:
+            from .formats import detect_format
+
+            kept.source_format = detect_format(path)
         return kept
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 
 from ..errors import PixieError
@@ -54,15 +55,59 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     set_quiet(getattr(args, "quiet", False))
+    previous = _handle_sigterm()
     try:
         result = args.func(args)
     except PixieError as exc:
         print(f"pixie {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except Terminated:
+        print(f"pixie {args.command}: terminated (SIGTERM); partial output removed", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except KeyboardInterrupt:
         print(f"pixie {args.command}: interrupted", file=sys.stderr)
         return 130
+    except MemoryError:
+        print(f"pixie {args.command}: error: out of memory (the input or the requested sizes are too large "
+              "for this machine)", file=sys.stderr)
+        return 3
+    except OSError as exc:  # permissions, a full disk, an unwritable folder…: one line naming the path
+        print(f"pixie {args.command}: error: {os_error_text(exc)}", file=sys.stderr)
+        return 1
+    finally:
+        _restore_sigterm(previous)
     return int(result or 0)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so every `except BaseException`/`finally` cleanup runs."""
+
+
+def _on_sigterm(signum, frame) -> None:
+    raise Terminated()
+
+
+def _handle_sigterm():
+    """Install the SIGTERM handler (main thread only); returns the previous handler."""
+    try:
+        return signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # not the main thread (e.g. called from a worker thread)
+        return None
+
+
+def _restore_sigterm(previous) -> None:
+    if previous is not None:
+        try:
+            signal.signal(signal.SIGTERM, previous)
+        except ValueError:
+            pass
+
+
+def os_error_text(exc: OSError) -> str:
+    """'PATH: reason' for an OSError (both paths of a failed rename/copy)."""
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
+    return f"{' -> '.join(paths)}: {reason}" if paths else reason
 
 
 if __name__ == "__main__":

@@ -16,12 +16,36 @@ from typing import Any
 import numpy as np
 
 from ..atomic import atomic_path
-from ..errors import InputError
+from ..errors import InputError, require_file
 
 BOUNDARY_CELLS = 3  # grid nodes this close to the domain faces act as walls (B-spline support)
 PRESETS = ("drop", "wind", "push")
 UP_AXES = ("x", "y", "z", "-x", "-y", "-z")
 Vec3 = tuple[float, float, float]
+MAX_SCENE_BYTES = 10_000_000  # a scene file is a few kB; refuse anything absurd before parsing
+MAX_MAGNITUDE = 1e12  # any number of a scene (m, s, m/s, Pa, …): beyond, float32 physics is meaningless
+MAX_SIZE_M = 1e4  # domain and object sides (m)
+MAX_GRID = 4096  # grid cells along the longest side
+GRID_BYTES_PER_NODE = 32  # solver arrays per grid node: mass, momentum, fixed, velocity (float32)
+
+
+def _finite_number(value: Any) -> bool:
+    """A JSON number (not a bool) that is finite and within ±MAX_MAGNITUDE (huge ints included)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(value)) and abs(float(value)) <= MAX_MAGNITUDE
+    except OverflowError:
+        return False
+
+
+def _show(value: Any, limit: int = 60) -> str:
+    """A short JSON rendering of a bad value for an error message (never thousands of digits)."""
+    try:
+        text = json.dumps(value)
+    except (ValueError, TypeError, RecursionError):
+        text = type(value).__name__
+    return text if len(text) <= limit else text[:limit] + "…"
 
 
 @dataclass
@@ -192,14 +216,24 @@ class Scene:
     def from_json(cls, path: str | Path) -> "Scene":
         """Load a scene JSON file (one-line InputError naming the file for any problem)."""
         path = Path(path)
+        if path.exists():  # refuse FIFOs/devices (reading one would block); missing → read error below
+            require_file(path, "a scene JSON file")
+        if path.is_file() and path.stat().st_size > MAX_SCENE_BYTES:
+            raise InputError(f"is {path.stat().st_size} bytes; a scene JSON is at most {MAX_SCENE_BYTES}", path)
         try:
-            text = path.read_text(encoding="utf-8")
+            text = path.read_bytes().decode("utf-8")
         except OSError as exc:
             raise InputError(f"cannot read scene file ({exc.strerror or exc})", path) from None
+        except UnicodeDecodeError as exc:
+            raise InputError(f"not UTF-8 text (byte {exc.start}); a scene is a JSON file", path) from None
         try:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
             raise InputError(f"not valid JSON (line {exc.lineno}: {exc.msg})", path) from None
+        except RecursionError:
+            raise InputError("JSON nested too deeply", path) from None
+        except ValueError as exc:  # e.g. an integer literal with thousands of digits
+            raise InputError(f"not usable JSON ({str(exc).splitlines()[0][:100]})", path) from None
         return cls.from_dict(data, source=path)
 
     @classmethod
@@ -255,6 +289,7 @@ class _SceneParser:
         self.source = str(source) if source is not None else "scene"
 
     def fail(self, key: str, problem: str) -> InputError:
+        key = key if len(key) <= 80 else key[:80] + "…"
         return InputError(f"key '{key}': {problem}", self.source)
 
     def table(self, d: Any, key: str, allowed: tuple[str, ...]) -> dict[str, Any]:
@@ -272,32 +307,31 @@ class _SceneParser:
         full = f"{key}.{name}" if key else name
         if value is None and (allow_none or default is None and name not in d):
             return None
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise self.fail(full, f"must be a finite number, got {json.dumps(value)}")
+        if not _finite_number(value):
+            raise self.fail(full, f"must be a finite number (|x| ≤ {MAX_MAGNITUDE:g}), got {_show(value)}")
         if lo is not None and (value < lo or (lo_open and value == lo)):
             raise self.fail(full, f"must be {'>' if lo_open else '≥'} {lo:g}, got {value:g}")
         if hi is not None and value > hi:
             raise self.fail(full, f"must be ≤ {hi:g}, got {value:g}")
         return float(value)
 
-    def integer(self, d: dict, name: str, key: str, default: int, lo: int) -> int:
+    def integer(self, d: dict, name: str, key: str, default: int, lo: int, hi: int | None = None) -> int:
         value = d.get(name, default)
         full = f"{key}.{name}" if key else name
-        if isinstance(value, bool) or not isinstance(value, int) or value < lo:
-            raise self.fail(full, f"must be an integer ≥ {lo}, got {json.dumps(value)}")
+        if isinstance(value, bool) or not isinstance(value, int) or value < lo or (hi is not None and value > hi):
+            limits = f"≥ {lo}" + ("" if hi is None else f" and ≤ {hi}")
+            raise self.fail(full, f"must be an integer {limits}, got {_show(value)}")
         return int(value)
 
     def boolean(self, d: dict, name: str, key: str, default: bool) -> bool:
         value = d.get(name, default)
         if not isinstance(value, bool):
-            raise self.fail(f"{key}.{name}" if key else name, f"must be true or false, got {json.dumps(value)}")
+            raise self.fail(f"{key}.{name}" if key else name, f"must be true or false, got {_show(value)}")
         return value
 
     def vec3(self, value: Any, key: str) -> Vec3:
-        if (not isinstance(value, list) or len(value) != 3
-                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-                           for v in value)):
-            raise self.fail(key, f"must be a list of 3 finite numbers, got {json.dumps(value)}")
+        if not isinstance(value, list) or len(value) != 3 or not all(_finite_number(v) for v in value):
+            raise self.fail(key, f"must be a list of 3 finite numbers (|x| ≤ {MAX_MAGNITUDE:g}), got {_show(value)}")
         return (float(value[0]), float(value[1]), float(value[2]))
 
     def region(self, value: Any, key: str) -> Region | None:
@@ -321,28 +355,29 @@ class _SceneParser:
         d = self.table(data, "", tuple(Scene.__dataclass_fields__))
         up = d.get("up", "z")
         if up not in UP_AXES:
-            raise self.fail("up", f"must be one of {', '.join(UP_AXES)}, got {json.dumps(up)}")
+            raise self.fail("up", f"must be one of {', '.join(UP_AXES)}, got {_show(up)}")
         o = self.table(d.get("object", {}), "object", ("size_m", "position"))
-        placement = ObjectPlacement(self.number(o, "size_m", "object", 0.5, lo=0.0, lo_open=True),
+        placement = ObjectPlacement(self.number(o, "size_m", "object", 0.5, lo=0.0, lo_open=True, hi=MAX_SIZE_M),
                                     self.vec3(o.get("position", [0, 0, 0]), "object.position"))
         dm = self.table(d.get("domain", {}), "domain", ("size_m", "grid", "origin"))
         size = dm.get("size_m", 1.0)
         if isinstance(size, list):
             size = self.vec3(size, "domain.size_m")
-            if min(size) <= 0:
-                raise self.fail("domain.size_m", "every side must be > 0 m")
+            if min(size) <= 0 or max(size) > MAX_SIZE_M:
+                raise self.fail("domain.size_m", f"every side must be > 0 m and ≤ {MAX_SIZE_M:g} m")
         else:
-            size = self.number(dm, "size_m", "domain", 1.0, lo=0.0, lo_open=True)
+            size = self.number(dm, "size_m", "domain", 1.0, lo=0.0, lo_open=True, hi=MAX_SIZE_M)
         origin = dm.get("origin")
-        domain = Domain(size, self.integer(dm, "grid", "domain", 64, lo=8),
+        domain = Domain(size, self.integer(dm, "grid", "domain", 64, lo=8, hi=MAX_GRID),
                         None if origin is None else self.vec3(origin, "domain.origin"))
+        self.check_grid_memory(Scene(domain=domain))
         g = self.table(d.get("ground", {}), "ground", ("enabled", "height_m", "friction"))
         ground = Ground(self.boolean(g, "enabled", "ground", True),
                         self.number(g, "height_m", "ground", 0.0),
                         self.number(g, "friction", "ground", 0.5, lo=0.0))
         walls = d.get("walls", "slip")
         if walls not in ("slip", "sticky"):
-            raise self.fail("walls", f"must be \"slip\" or \"sticky\", got {json.dumps(walls)}")
+            raise self.fail("walls", f"must be \"slip\" or \"sticky\", got {_show(walls)}")
         scene = Scene(
             up=up, object=placement, domain=domain,
             gravity=self.vec3(d.get("gravity", [0.0, 0.0, -9.81]), "gravity"),
@@ -357,6 +392,18 @@ class _SceneParser:
             materials=self.materials(d.get("materials", {})),
         )
         return scene
+
+    def check_grid_memory(self, scene: Scene) -> None:
+        """InputError (with the figure) when the grid's nodes cannot fit in this machine's memory."""
+        from ..limits import require_memory
+
+        dims = scene.grid_dims
+        nodes = dims[0] * dims[1] * dims[2]
+        try:
+            require_memory(nodes * GRID_BYTES_PER_NODE, f"a simulation grid of {dims[0]}×{dims[1]}×{dims[2]} nodes",
+                           self.source)
+        except InputError as exc:
+            raise self.fail("domain.grid", str(exc).split(": ", 1)[-1]) from None
 
     def wind(self, value: Any, key: str) -> Wind:
         w = self.table(value, key, tuple(Wind.__dataclass_fields__))
@@ -381,7 +428,8 @@ class _SceneParser:
     def fixed(self, value: Any, key: str) -> FixedSpec:
         f = self.table(value, key, ("region", "part_ids"))
         ids = f.get("part_ids", [])
-        if not isinstance(ids, list) or not all(isinstance(p, int) and not isinstance(p, bool) for p in ids):
+        if not isinstance(ids, list) or not all(isinstance(p, int) and not isinstance(p, bool)
+                                                and abs(p) <= 2 ** 31 - 1 for p in ids):
             raise self.fail(f"{key}.part_ids", "must be a list of integer part ids")
         spec = FixedSpec(self.region(f.get("region"), f"{key}.region"), [int(p) for p in ids])
         if spec.region is None and not spec.part_ids:
@@ -396,6 +444,8 @@ class _SceneParser:
             key = f"part_overrides.{name}"
             try:
                 part = int(name)
+                if abs(part) > 2 ** 31 - 1:
+                    raise ValueError(name)
             except ValueError:
                 raise self.fail(key, "part ids must be integers") from None
             o = self.table(entry, key, tuple(PartOverride.__dataclass_fields__))
@@ -410,8 +460,8 @@ class _SceneParser:
         s = self.table(value, "solver", tuple(SolverSettings.__dataclass_fields__))
         return SolverSettings(self.number(s, "cfl", "solver", 0.4, lo=0.0, hi=1.0, lo_open=True),
                               self.number(s, "velocity_cfl", "solver", 0.25, lo=0.0, hi=1.0, lo_open=True),
-                              self.integer(s, "max_substeps_per_frame", "solver", 2000, lo=1),
-                              self.integer(s, "particles_per_cell", "solver", 8, lo=1))
+                              self.integer(s, "max_substeps_per_frame", "solver", 2000, lo=1, hi=10_000_000),
+                              self.integer(s, "particles_per_cell", "solver", 8, lo=1, hi=64))
 
     def materials(self, value: Any) -> MaterialSettings:
         m = self.table(value, "materials", tuple(MaterialSettings.__dataclass_fields__))
