@@ -2,6 +2,7 @@
 ratio, contact restitution, plastic set, fixed/stationary parts, forces, covariances, guard.
 
 Grids are coarse and particle counts small so the file runs in a few minutes on 2 cores.
+Every test runs on each Warp device present (`device` fixture: cpu, and cuda when a GPU is there).
 """
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import pytest
 from pixie_gs.errors import ComputationError, InputError
 from pixie_gs.materials import JELLY, METAL, SAND, SNOW, STATIONARY
 from pixie_gs.sim import MPMSolver, Particles, Scene, advect_covariances
+from test_sim_kernels import device  # noqa: F401  (the per-device fixture)
 
 G = 9.81  # m/s²
 
@@ -31,11 +33,11 @@ def small_block(scene: Scene, lo=(-0.03, -0.03, 0.0), hi=(0.03, 0.03, 0.06), **a
 
 
 # ---------------------------------------------------------------------------------------- kinematics
-def test_free_fall_without_ground_matches_half_g_t_squared():
+def test_free_fall_without_ground_matches_half_g_t_squared(device):
     scene = make_scene(domain={"size_m": 1.0, "grid": 32, "origin": [-0.5, -0.5, -0.7]},
                        ground={"enabled": False}, solver={"velocity_cfl": 0.1})
     p = small_block(scene, lo=(-0.06, -0.06, 0.1), hi=(0.06, 0.06, 0.22))
-    sim = MPMSolver(p, scene)
+    sim = MPMSolver(p, scene, device)
     for _ in range(10):
         sim.step_frame(1 / 30)
     drop = p.x[:, 2].mean() - sim.positions()[:, 2].mean()
@@ -44,33 +46,33 @@ def test_free_fall_without_ground_matches_half_g_t_squared():
     assert np.ptp(p.x[:, 2] - sim.positions()[:, 2]) < 1e-4
 
 
-def test_time_step_shrinks_as_snow_compacts_and_hardens():
+def test_time_step_shrinks_as_snow_compacts_and_hardens(device):
     """Snow's stiffness is E·exp(ξ(1 − Jp)); the CFL step must follow the hardened wave speed."""
     scene = make_scene(domain={"size_m": 1.0, "grid": 32, "origin": [-0.5, -0.5, -0.5]}, ground={"enabled": False},
                        gravity=[0, 0, 0])
-    sim = MPMSolver(small_block(scene, E=1e5, density=400.0, material_id=SNOW), scene)
+    sim = MPMSolver(small_block(scene, E=1e5, density=400.0, material_id=SNOW), scene, device)
     dt_fresh = sim.dt
     jp = np.ones(sim.n, np.float32)
     jp[0] = 0.9  # one grain compacted by 10 %
-    sim.Jp.assign(jp)
+    sim.set_plastic_volume_ratio(jp)
     xi = scene.materials.snow_hardening
     assert sim.dt == pytest.approx(dt_fresh / np.sqrt(np.exp(xi * 0.1)), rel=1e-5)
 
 
-def test_substeps_follow_the_cfl_of_the_stiffest_moving_material():
+def test_substeps_follow_the_cfl_of_the_stiffest_moving_material(device):
     scene = make_scene(domain={"size_m": 1.0, "grid": 32, "origin": [-0.5, -0.5, -0.5]}, ground={"enabled": False},
                        gravity=[0, 0, 0])
     soft = small_block(scene, E=1e4)
     stiff = small_block(scene, lo=(0.1, 0.1, 0.1), hi=(0.15, 0.15, 0.15), E=1e6)
     rigid = small_block(scene, lo=(-0.2, -0.2, -0.2), hi=(-0.15, -0.15, -0.15), E=1e10, material_id=STATIONARY)
-    sim = MPMSolver(join(soft, stiff, rigid), scene)
+    sim = MPMSolver(join(soft, stiff, rigid), scene, device)
     c = np.sqrt(1e6 * 0.7 / (500.0 * 1.3 * 0.4))  # P-wave speed of the stiff block (m/s)
     assert sim.dt == pytest.approx(scene.solver.cfl * scene.dx / c, rel=1e-5)  # stationary part ignored
     assert sim.substeps_for(0.01) == int(np.ceil(0.01 / sim.dt))
 
 
 # ---------------------------------------------------------------------------------------- elasticity
-def test_bar_longitudinal_wave_speed_is_sqrt_E_over_rho():
+def test_bar_longitudinal_wave_speed_is_sqrt_E_over_rho(device):
     """Free–free bar, first longitudinal mode: period 2L/c with c = √(E/ρ)."""
     scene = make_scene(domain={"size_m": [0.7, 0.2, 0.2], "grid": 56, "origin": [-0.1, -0.1, -0.1]},
                        ground={"enabled": False}, gravity=[0, 0, 0])
@@ -80,7 +82,7 @@ def test_bar_longitudinal_wave_speed_is_sqrt_E_over_rho():
                           material_id=JELLY)
     p.v[:, 0] = 0.05 * np.cos(np.pi * p.x[:, 0] / length)
     left, right = p.x[:, 0] < dx, p.x[:, 0] > length - dx
-    sim = MPMSolver(p, scene)
+    sim = MPMSolver(p, scene, device)
     period = 2 * length / np.sqrt(E / rho)
     times, stretch = [0.0], [0.0]
     for _ in range(100):
@@ -96,14 +98,14 @@ def test_bar_longitudinal_wave_speed_is_sqrt_E_over_rho():
     assert measured_c == pytest.approx(np.sqrt(E / rho), rel=0.05)
 
 
-def test_uniaxial_stress_lateral_strain_ratio_is_poisson_ratio():
+def test_uniaxial_stress_lateral_strain_ratio_is_poisson_ratio(device):
     """A block on a frictionless floor under its weight is in uniaxial stress: ε_lat = −ν ε_axial,
     and its mean axial strain is −ρ g h / (2E)."""
     nu, E, rho, w, h = 0.3, 1e5, 1000.0, 0.05, 0.1
     scene = make_scene(domain={"size_m": [0.2, 0.2, 0.25], "grid": 25}, ground={"friction": 0.0}, damping=100.0)
     p = Particles.lattice((-w / 2, -w / 2, 0), (w / 2, w / 2, h), scene.dx / 2, E=E, nu=nu, density=rho,
                           material_id=JELLY)
-    sim = MPMSolver(p, scene)
+    sim = MPMSolver(p, scene, device)
     for _ in range(15):
         sim.step_frame(0.02)
     X = p.x.astype(np.float64)
@@ -115,7 +117,7 @@ def test_uniaxial_stress_lateral_strain_ratio_is_poisson_ratio():
     assert strain[2, 2] == pytest.approx(-rho * G * h / (2 * E), rel=0.05)
 
 
-def test_elastic_ball_bounce_keeps_most_energy():
+def test_elastic_ball_bounce_keeps_most_energy(device):
     scene = make_scene(domain={"size_m": [0.4, 0.4, 0.6], "grid": 30}, ground={"friction": 0.0})
     r, zc = 0.1, 0.35
     p = Particles.lattice((-r, -r, zc - r), (r, r, zc + r), scene.dx / 2,
@@ -127,7 +129,7 @@ def test_elastic_ball_bounce_keeps_most_energy():
         x, v = sim.positions().astype(np.float64), sim.velocities().astype(np.float64)
         return float((m * (0.5 * (v ** 2).sum(1) + G * (x[:, 2] - r))).sum())
 
-    sim = MPMSolver(p, scene)
+    sim = MPMSolver(p, scene, device)
     e0 = energy(sim)
     after, lowest = [], zc
     for _ in range(50):
@@ -141,7 +143,7 @@ def test_elastic_ball_bounce_keeps_most_energy():
 
 
 # ---------------------------------------------------------------------------------------- plasticity
-def test_metal_keeps_permanent_set_jelly_recovers_stationary_never_moves():
+def test_metal_keeps_permanent_set_jelly_recovers_stationary_never_moves(device):
     """Columns squeezed by a temporary downward load: von Mises metal (and jelly given a yield
     stress) stay shorter after unloading, plain jelly returns to its elastic height; stationary
     and fixed particles in the air do not move at all."""
@@ -157,7 +159,7 @@ def test_metal_keeps_permanent_set_jelly_recovers_stationary_never_moves():
                              material_id=JELLY, fixed=True)
     p = join(*columns, stationary, held)
     bounds = np.cumsum([0] + [len(c) for c in columns])
-    sim = MPMSolver(p, scene)
+    sim = MPMSolver(p, scene, device)
     for _ in range(15):
         sim.step_frame(0.02)
     x = sim.positions()
@@ -177,32 +179,32 @@ def test_metal_keeps_permanent_set_jelly_recovers_stationary_never_moves():
 
 
 # ---------------------------------------------------------------------------------------- forces
-def free_block_sim(E: float = 1e5, **scene_keys: object) -> tuple[MPMSolver, Particles]:
+def free_block_sim(device: str, E: float = 1e5, **scene_keys: object) -> tuple[MPMSolver, Particles]:
     keys = {"domain": {"size_m": 1.0, "grid": 20, "origin": [-0.5, -0.5, -0.5]}, "ground": {"enabled": False},
             "gravity": [0, 0, 0], **scene_keys}
     scene = make_scene(**keys)
     p = small_block(scene, lo=(-0.1, -0.1, -0.1), hi=(0.1, 0.1, 0.1), E=E)
-    return MPMSolver(p, scene), p
+    return MPMSolver(p, scene, device), p
 
 
-def test_viscous_damping_and_quadratic_air_drag_follow_their_laws():
-    sim, p = free_block_sim(damping=3.0)
-    sim.v.assign(np.tile([0.5, 0, 0], (len(p), 1)).astype(np.float32))
+def test_viscous_damping_and_quadratic_air_drag_follow_their_laws(device):
+    sim, p = free_block_sim(device, damping=3.0)
+    sim.set_velocities(np.tile([0.5, 0, 0], (len(p), 1)))
     for _ in range(5):
         sim.step_frame(0.02)
     assert sim.velocities()[:, 0].mean() == pytest.approx(0.5 * np.exp(-3.0 * 0.1), rel=0.01)
 
-    sim, p = free_block_sim(air_drag=4.0)
-    sim.v.assign(np.tile([0.5, 0, 0], (len(p), 1)).astype(np.float32))
+    sim, p = free_block_sim(device, air_drag=4.0)
+    sim.set_velocities(np.tile([0.5, 0, 0], (len(p), 1)))
     for _ in range(5):
         sim.step_frame(0.02)
     assert sim.velocities()[:, 0].mean() == pytest.approx(0.5 / (1 + 4.0 * 0.5 * 0.1), rel=0.01)
 
 
-def test_wind_window_region_and_impulse():
+def test_wind_window_region_and_impulse(device):
     wind = {"acceleration": [2.0, 0, 0], "start_s": 0.04, "end_s": 0.1}
     impulse = {"time_s": 0.05, "velocity_change": [0, 0.3, 0], "region": {"min": [-1, -1, 0.0], "max": [1, 1, 1]}}
-    sim, p = free_block_sim(wind=[wind], impulses=[impulse])
+    sim, p = free_block_sim(device, wind=[wind], impulses=[impulse])
     for _ in range(8):
         sim.step_frame(0.02)
     v = sim.velocities()
@@ -214,7 +216,7 @@ def test_wind_window_region_and_impulse():
     assert momentum[1] == pytest.approx(0.3 * p.mass[upper].sum(), rel=0.01)
 
     gusty = dict(wind, start_s=0.0, end_s=None, gust_amplitude=1.0, gust_frequency_hz=5.0)
-    sim, p = free_block_sim(wind=[gusty])
+    sim, p = free_block_sim(device, wind=[gusty])
     for _ in range(5):
         sim.step_frame(0.02)
     T, f = 0.1, 5.0  # ∫ a (1 + sin 2πft) dt = a (T + (1 − cos 2πfT) / 2πf)
@@ -222,18 +224,18 @@ def test_wind_window_region_and_impulse():
     assert sim.velocities()[:, 0].mean() == pytest.approx(expected, rel=0.02)
 
     outside = dict(wind, start_s=0.0, region={"min": [0.3, 0.3, 0.3], "max": [0.4, 0.4, 0.4]})
-    sim, p = free_block_sim(wind=[outside])
+    sim, p = free_block_sim(device, wind=[outside])
     sim.step_frame(0.05)
     assert np.abs(sim.velocities()).max() < 1e-4
 
 
-def test_ground_coulomb_friction_stops_a_sliding_block():
+def test_ground_coulomb_friction_stops_a_sliding_block(device):
     """A block sliding at v0 decelerates at μg and stops after v0² / (2μg)."""
     mu, v0 = 0.4, 1.0
     scene = make_scene(domain={"size_m": [0.8, 0.2, 0.2], "grid": 40, "origin": [-0.2, -0.1, -0.06]},
                        ground={"friction": mu})
     p = small_block(scene, lo=(-0.04, -0.02, 0.0), hi=(0.04, 0.02, 0.04), E=1e5, v=[v0, 0, 0])
-    sim = MPMSolver(p, scene)
+    sim = MPMSolver(p, scene, device)
     for _ in range(20):
         sim.step_frame(0.02)
     travel = sim.positions()[:, 0].mean() - p.x[:, 0].mean()
@@ -242,7 +244,7 @@ def test_ground_coulomb_friction_stops_a_sliding_block():
 
 
 # ---------------------------------------------------------------------------------------- covariance, guard
-def test_covariance_under_homogeneous_F_is_exactly_F_sigma_FT():
+def test_covariance_under_homogeneous_F_is_exactly_F_sigma_FT(device):
     F = np.array([[2.0, 1.0, 0.0], [0.0, 1.0, 0.5], [0.0, 0.0, 3.0]])
     sigma = np.array([[4.0, 1.0, 0.0], [1.0, 2.0, 0.0], [0.0, 0.0, 1.0]])
     out = advect_covariances(np.stack([sigma, np.eye(3)]), np.stack([F, F]))
@@ -251,9 +253,9 @@ def test_covariance_under_homogeneous_F_is_exactly_F_sigma_FT():
 
     # through the solver: a uniform velocity gradient stretches a very soft free body (its
     # elastic waves are too slow to matter), and the covariances follow the solver's own F
-    sim, p = free_block_sim(E=1.0)
+    sim, p = free_block_sim(device, E=1.0)
     L = np.array([[0.5, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
-    sim.v.assign((p.x @ L.T).astype(np.float32))
+    sim.set_velocities(p.x @ L.T)
     sim.step_frame(0.01)
     F_sim = sim.deformation_gradients()
     cov = advect_covariances(np.tile(sigma, (len(p), 1, 1)), F_sim)
@@ -262,33 +264,33 @@ def test_covariance_under_homogeneous_F_is_exactly_F_sigma_FT():
     assert F_sim[centre, 0, 0].mean() == pytest.approx(1.0 + 0.5 * 0.01, rel=2e-3)
 
 
-def test_explosion_guard_names_frame_and_material():
+def test_explosion_guard_names_frame_and_material(device):
     scene = make_scene(domain={"size_m": 0.6, "grid": 20}, solver={"max_substeps_per_frame": 1})
     p = small_block(scene, lo=(-0.05, -0.05, 0.05), hi=(0.05, 0.05, 0.15), material_id=METAL, E=1e5,
                     v=[0, 0, 200.0])
-    sim = MPMSolver(p, scene)
+    sim = MPMSolver(p, scene, device)
     with pytest.raises(ComputationError, match=r"diverged at frame 1 \(t=0\.01 s\): material 'metal'"):
         sim.step_frame(0.01)
 
 
-def test_particles_outside_the_domain_are_an_input_error():
+def test_particles_outside_the_domain_are_an_input_error(device):
     scene = make_scene(domain={"size_m": 0.5, "grid": 16})
     p = small_block(scene, lo=(0.2, 0.2, 0.1), hi=(0.3, 0.3, 0.2))
     with pytest.raises(InputError, match="outside the simulation domain"):
-        MPMSolver(p, scene)
+        MPMSolver(p, scene, device)
 
 
-def test_too_stiff_material_is_softened_to_fit_the_substep_cap():
+def test_too_stiff_material_is_softened_to_fit_the_substep_cap(device):
     scene = make_scene(domain={"size_m": 0.4, "grid": 20}, solver={"max_substeps_per_frame": 50})
     lo, hi = (-0.04, -0.04, 0.02), (0.04, 0.04, 0.1)
     first = small_block(scene, lo=lo, hi=hi, material_id=METAL, E=7e10, density=2700.0, yield_stress=1e8)
     can = join(first, small_block(scene, lo=(0.1, 0.1, 0.02), hi=(0.14, 0.14, 0.06), material_id=METAL,
                                   E=7e10, density=2700.0))
     given = np.arange(len(can)) < len(first)  # the first block has its own yield stress
-    sim = MPMSolver(can, scene)
+    sim = MPMSolver(can, scene, device)
     assert sim.substeps_for(1 / 30) == 50
     assert sim.stiffness_scale < 1e-3 and sim.dt * 50 >= 1 / 30
-    ys = sim.yield_stress.numpy()
+    ys = sim.yield_stresses()
     assert np.all(ys[given] == np.float32(1e8))  # a yield stress from the file is kept
     # a default yield (metal_yield_strain · E) keeps its yield strain when E is softened
     assert ys[~given] == pytest.approx(1e-3 * 7e10 * sim.stiffness_scale, rel=1e-3)
@@ -298,7 +300,7 @@ def test_too_stiff_material_is_softened_to_fit_the_substep_cap():
     assert z.min() > -0.5 * scene.dx and np.ptp(z) == pytest.approx(np.ptp(can.x[given, 2]), abs=2e-3)
 
 
-def test_each_plastic_material_behaves_like_itself():
+def test_each_plastic_material_behaves_like_itself(device):
     """Same block, same drop: fluid spreads flat, sand slumps part-way, snow compacts (Jp < 1) and
     keeps its shape, jelly keeps its shape."""
     scene = make_scene(domain={"size_m": 0.4, "grid": 20}, ground={"friction": 0.5})
@@ -306,7 +308,7 @@ def test_each_plastic_material_behaves_like_itself():
     for mat, name in ((4, "fluid"), (SAND, "sand"), (5, "snow"), (JELLY, "jelly")):
         p = small_block(scene, lo=(-0.04, -0.04, 0.0), hi=(0.04, 0.04, 0.12), material_id=mat, E=1e5,
                         nu=0.3, density=1000.0, v=[0, 0, -1.0])
-        sim = MPMSolver(p, scene)
+        sim = MPMSolver(p, scene, device)
         for _ in range(12):
             sim.step_frame(1 / 30)
         results[name] = (np.ptp(sim.positions()[:, 2]) / np.ptp(p.x[:, 2]), sim.plastic_volume_ratio())
@@ -317,7 +319,7 @@ def test_each_plastic_material_behaves_like_itself():
     assert 0.95 < results["jelly"][0] < 1.05 and np.all(results["jelly"][1] == 1.0)
 
 
-def test_sand_column_collapse_follows_the_runout_law():
+def test_sand_column_collapse_follows_the_runout_law(device):
     """Quarter of an axisymmetric column (a = h0/r0 = 0.5) between two slip walls (its symmetry
     planes) on a rough floor: normalised runout (r∞ − r0)/r0 within 20 % of 1.24·a (Lube et al.
     2004). benchmarks/bench_sand_collapse.py covers a = 0.5 … 3 at the same resolution."""
@@ -330,7 +332,7 @@ def test_sand_column_collapse_follows_the_runout_law():
     column = Particles.lattice((0, 0, 0), (r0, r0, aspect * r0), dx / 2,
                                inside=lambda x: np.hypot(x[:, 0], x[:, 1]) < r0,
                                E=2e5, nu=0.3, density=2000.0, material_id=SAND)
-    sim = MPMSolver(column, scene)
+    sim = MPMSolver(column, scene, device)
     for _ in range(20):
         sim.step_frame(0.02)
         if sim.time_s > 0.2 and np.abs(sim.velocities()).max() < 0.005:

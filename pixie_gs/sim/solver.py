@@ -4,10 +4,17 @@ The substep dt comes from a CFL bound on the fastest elastic (P-)wave of the par
 c = √(E(1−ν)/(ρ(1+ν)(1−2ν))), and on the fastest particle; each frame is split into
 ceil(frame_dt / dt) substeps. After every frame a guard checks that velocities and deformation
 gradients are finite and bounded, and raises ComputationError naming the frame and material.
+
+No particle array leaves the device inside a frame: the CFL inputs (fastest particle, hardened
+snow) and the guard are reductions on the device (sim/reduce.py) that read back 9 numbers.
+The particle arrays are kept in grid-cell order (sim/sort.py), re-sorted every `sort_every`
+frames; `order` maps array slots to the caller's particle indices and every accessor
+(positions(), velocities(), ...) answers in the caller's order.
 """
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import warp as wp
@@ -22,7 +29,9 @@ from ..progress import stage
 from . import kernels
 from .constitutive import NO_YIELD
 from .particles import Particles
+from .reduce import FrameStats, StatsReducer, reference_stats
 from .scene import BOUNDARY_CELLS, Scene
+from .sort import cell_order, permute_in_place
 
 FAR = 1.0e30  # "unbounded" for regions and time windows passed to kernels
 MAX_STRETCH = 1.0e3  # ‖F‖ or 1/J beyond this counts as diverged
@@ -46,11 +55,17 @@ class MPMSolver:
     Attributes: time_s (simulated time), frame (frames done), dt (current stable substep, s),
     substeps_last_frame, particle_substeps (total particles × substeps, for throughput figures),
     stiffness_scale (≤ 1: factor applied to the stiffest parts' E to respect
-    scene.solver.max_substeps_per_frame; 1 when nothing was softened).
+    scene.solver.max_substeps_per_frame; 1 when nothing was softened), timing (host seconds
+    of the last frame: stats, launch, guard, sort; the guard's figure includes waiting for the
+    device to finish the frame), kernel_timer (None, or an object whose mark(name) is called
+    after each kernel launch: benchmarks time kernels with it).
     The scene is read once, at construction; build a new solver to change it.
+    `sort_every`: re-sort the particle arrays into cell order every this many frames (0: keep
+    the caller's order, never sort). Sorted and unsorted runs agree to float rounding.
+    The Warp arrays (x, v, F, ...) are in slot order; use the accessors for the caller's order.
     """
 
-    def __init__(self, particles: Particles, scene: Scene, device: str = "cpu") -> None:
+    def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int = 4) -> None:
         particles.validate()
         self.scene = scene
         self.device = resolve_warp_device(device)
@@ -60,6 +75,9 @@ class MPMSolver:
         self.substeps_last_frame = 0
         self.particle_substeps = 0
         self.stiffness_scale = 1.0
+        self.sort_every = int(sort_every)
+        self.timing: dict[str, float] = {}
+        self.kernel_timer = None
         self._impulse_done = [False] * len(scene.impulses)
 
         self.dx = scene.dx
@@ -102,11 +120,15 @@ class MPMSolver:
         self.mass = wp.array(particles.mass, dtype=float, device=d)
         self.mu = wp.zeros(self.n, dtype=float, device=d)
         self.lam = wp.zeros(self.n, dtype=float, device=d)
+        self.wave_c = wp.zeros(self.n, dtype=float, device=d)  # P-wave speed (m/s) at the current stiffness
         self._set_stiffness(np.ones(self.n))
         self.yield_stress = wp.array(ys.astype(np.float32), dtype=float, device=d)
         self.material = wp.array(self.material_id, dtype=wp.int32, device=d)
         self.Jp = wp.ones(self.n, dtype=float, device=d)
         self.fixed_flag = wp.array(fixed.astype(np.int32), dtype=wp.int32, device=d)
+        self.order = wp.array(np.arange(self.n, dtype=np.int32), dtype=wp.int32, device=d)  # slot → index
+        self._order_host: np.ndarray | None = None  # host copy of `order`, None when stale
+        self._reducer = StatsReducer(d)
 
         self.grid_mass = wp.zeros(self.dims, dtype=float, device=d)
         self.grid_momentum = wp.zeros(self.dims, dtype=wp.vec3, device=d)
@@ -121,6 +143,8 @@ class MPMSolver:
         self.material_params = self._material_params()
         self._upload_wind()
         self._record_launches()
+        if self.sort_every > 0:
+            self._resort()
 
     # ------------------------------------------------------------------ set-up helpers
     def _check_inside(self, x: np.ndarray) -> None:
@@ -165,48 +189,94 @@ class MPMSolver:
         self._wind_peak = sum(float(np.linalg.norm(w.acceleration)) * (1.0 + w.gust_amplitude) for w in winds)
 
     def _set_stiffness(self, scale: np.ndarray) -> None:
-        """Upload μ, λ for E·scale (scale < 1 only where stiffness had to be capped)."""
+        """Upload μ, λ and the wave speed for E·scale (scale < 1 only where stiffness had to be
+        capped); `scale` is in the caller's particle order."""
         mu, lam = lame_parameters(self._E * scale, self._nu)
-        self.mu.assign(mu.astype(np.float32))
-        self.lam.assign(lam.astype(np.float32))
+        c = self._wave_speed * np.sqrt(scale)
+        self.mu.assign(self._to_slots(mu.astype(np.float32)))
+        self.lam.assign(self._to_slots(lam.astype(np.float32)))
+        self.wave_c.assign(self._to_slots(c.astype(np.float32)))
+        static = self._moving & ~self._moving_snow  # their wave speed never changes
+        self._c_static = float(c[static].max()) if static.any() else 0.0
         self._scale = scale
 
+    # ------------------------------------------------------------------ particle order
+    def _slot_order(self) -> np.ndarray | None:
+        """order (slot → caller index) on the host, None while it is the identity."""
+        if self._order_host is None:
+            self._order_host = self.order.numpy().copy()
+        return self._order_host
+
+    def _to_slots(self, a: np.ndarray) -> np.ndarray:
+        """A per-particle host array in the caller's order, rearranged into slot order."""
+        return a if not hasattr(self, "order") else a[self._slot_order()]
+
+    def _to_caller(self, a: np.ndarray) -> np.ndarray:
+        """A per-particle array in slot order, rearranged into the caller's order (a copy)."""
+        out = np.empty_like(a)
+        out[self._slot_order()] = a
+        return out
+
+    def _particle_arrays(self) -> list[wp.array]:
+        return [self.x, self.v, self.C, self.stress, self.F, self.volume, self.mass, self.mu, self.lam,
+                self.wave_c, self.yield_stress, self.material, self.Jp, self.fixed_flag, self.order]
+
+    def _resort(self) -> None:
+        """Put the particle arrays into grid-cell order (on the device; order follows)."""
+        permute_in_place(cell_order(self.x, self.grid_info), self._particle_arrays())
+        self._order_host = None
+
     # ------------------------------------------------------------------ time stepping
+    def frame_stats(self, v_limit_mps: float = FAR) -> FrameStats:
+        """Device reduction of the current state: fastest moving particle, fastest hardened snow
+        wave, guard failures per material (speed above `v_limit_mps` counts as a failure)."""
+        return self._reducer.run(self.x, self.v, self.F, self.Jp, self.material, self.fixed_flag, self.wave_c,
+                                 self.scene.materials.snow_hardening, v_limit_mps, MAX_STRETCH)
+
+    def reference_frame_stats(self, v_limit_mps: float = FAR) -> FrameStats:
+        """frame_stats computed in numpy from host copies of the particle arrays (the plain
+        reference the device reduction is tested against; slow: copies the whole state)."""
+        return reference_stats(self.x.numpy(), self.v.numpy(), self.F.numpy(), self.Jp.numpy(),
+                               self.material.numpy(), self.fixed_flag.numpy(), self.wave_c.numpy(),
+                               self.scene.materials.snow_hardening, v_limit_mps, MAX_STRETCH)
+
+    def _max_wave_speed(self, stats: FrameStats | None) -> float:
+        if self._moving_snow.any():
+            stats = stats or self.frame_stats()
+            return max(self._c_static, stats.max_snow_wave_mps)
+        return self._c_static
+
     @property
     def max_wave_speed(self) -> float:
         """Fastest elastic wave (m/s) among moving particles, after any stiffness cap and with
         snow's current hardening (E·exp(ξ(1 − Jp)): compacted snow stiffens and needs smaller dt)."""
-        if not self._moving.any():
-            return 0.0
-        c = self._wave_speed * np.sqrt(self._scale)
-        snow = self._moving_snow
-        if snow.any():
-            jp = self.Jp.numpy()[snow].astype(np.float64)
-            c = c.copy()
-            c[snow] *= np.sqrt(np.exp(self.scene.materials.snow_hardening * np.maximum(0.0, 1.0 - jp)))
-        return float(c[self._moving].max())
+        return self._max_wave_speed(None)
+
+    def _cfl_dt(self, c_mps: float) -> float:
+        return math.inf if c_mps == 0.0 else self.scene.solver.cfl * self.dx / c_mps
 
     @property
     def dt(self) -> float:
         """Largest stable substep (s) from the elastic-wave CFL: cfl · dx / c_max."""
-        c = self.max_wave_speed
-        return math.inf if c == 0.0 else self.scene.solver.cfl * self.dx / c
+        return self._cfl_dt(self.max_wave_speed)
 
-    def substeps_for(self, frame_dt_s: float) -> int:
-        """Substeps this frame needs: elastic CFL and velocity CFL, within max_substeps_per_frame."""
+    def substeps_for(self, frame_dt_s: float, stats: FrameStats | None = None) -> int:
+        """Substeps this frame needs: elastic CFL and velocity CFL, within max_substeps_per_frame.
+        `stats`: this state's frame_stats when the caller has them (else one reduction runs)."""
         s = self.scene.solver
-        n_elastic = math.ceil(frame_dt_s / self.dt) if math.isfinite(self.dt) else 1
+        stats = stats or self.frame_stats()
+        dt = self._cfl_dt(self._max_wave_speed(stats))
+        n_elastic = math.ceil(frame_dt_s / dt) if math.isfinite(dt) else 1
         if n_elastic > s.max_substeps_per_frame:
             self._cap_stiffness(frame_dt_s)
             n_elastic = math.ceil(frame_dt_s / self.dt)
-        v_bound = self._speed_bound(frame_dt_s)
+        v_bound = self._speed_bound(frame_dt_s, stats.max_speed_mps)
         n_velocity = math.ceil(frame_dt_s * v_bound / (s.velocity_cfl * self.dx))
         return int(min(max(1, n_elastic, n_velocity), s.max_substeps_per_frame))
 
-    def _speed_bound(self, frame_dt_s: float) -> float:
-        """Upper estimate (m/s) of particle speed during the next frame."""
-        v = self.velocities()[self._moving]
-        v_now = float(np.sqrt((v.astype(np.float64) ** 2).sum(1).max())) if len(v) else 0.0
+    def _speed_bound(self, frame_dt_s: float, v_now: float) -> float:
+        """Upper estimate (m/s) of particle speed during the next frame, from the fastest moving
+        particle now (`v_now`, m/s), the accelerations and the impulses still to come."""
         accel = float(np.linalg.norm(self.scene.gravity)) + self._wind_peak
         kicks = sum(float(np.linalg.norm(imp.velocity_change))
                     for imp, done in zip(self.scene.impulses, self._impulse_done)
@@ -222,7 +292,7 @@ class MPMSolver:
         self._set_stiffness(scale)
         # a softened part keeps its yield *strain*: default yield stresses (strain · E) scale too
         ys = np.where(self._yield_from_strain, self._yield_base * scale, self._yield_base)
-        self.yield_stress.assign(ys.astype(np.float32))
+        self.yield_stress.assign(self._to_slots(ys.astype(np.float32)))
         self.stiffness_scale = float(scale[self._moving].min()) if self._moving.any() else 1.0
         softened = sorted({MATERIAL_NAMES[int(m)] for m in self.material_id[(scale < 1.0) & self._moving]})
         stage(f"stiffness of {', '.join(softened)} capped at {self.stiffness_scale:.2g}×E to fit "
@@ -232,7 +302,13 @@ class MPMSolver:
         """Advance the simulation by frame_dt_s seconds in ceil(frame_dt_s / dt) substeps."""
         if not (frame_dt_s > 0.0 and math.isfinite(frame_dt_s)):
             raise InputError(f"frame duration must be a positive number of seconds, got {frame_dt_s}")
+        clock = time.perf_counter
+        t_start = clock()
+        if self.sort_every > 0 and self.frame > 0 and self.frame % self.sort_every == 0:
+            self._resort()
+        t_sorted = clock()
         n_sub = self.substeps_for(frame_dt_s)
+        t_stats = clock()
         dt = frame_dt_s / n_sub
         t0 = self.time_s
         self.grid_mass.zero_()
@@ -242,11 +318,14 @@ class MPMSolver:
             t = t0 + s * dt
             self._apply_impulses(t + dt)
             self._substep(dt, t)
+        t_launched = clock()
         self.time_s = t0 + frame_dt_s
         self.frame += 1
         self.substeps_last_frame = n_sub
         self.particle_substeps += n_sub * self.n
         self._guard(dt)
+        self.timing = {"sort_s": t_sorted - t_start, "stats_s": t_stats - t_sorted,
+                       "launch_s": t_launched - t_stats, "guard_s": clock() - t_launched}
 
     def _apply_impulses(self, t_end: float) -> None:
         for i, imp in enumerate(self.scene.impulses):
@@ -288,53 +367,67 @@ class MPMSolver:
                     self.stress])
 
     def _substep(self, dt: float, t: float) -> None:
+        timer = self.kernel_timer
         self._p2g.set_param_by_name("dt", dt)
         self._p2g.launch()
+        if timer is not None:
+            timer.mark("p2g")
         box_lo, box_shape = self._active_box()
         self._grid.set_dim(box_shape)
         self._grid.set_param_by_name("box_lo", wp.vec3i(*box_lo))
         self._grid.set_param_by_name("dt", dt)
         self._grid.set_param_by_name("time_s", t)
         self._grid.launch()
+        if timer is not None:
+            timer.mark("grid")
         self._g2p.set_param_by_name("dt", dt)
         self._g2p.launch()
+        if timer is not None:
+            timer.mark("g2p")
 
     # ------------------------------------------------------------------ guard and results
     def _guard(self, dt: float) -> None:
-        """Raise ComputationError if any particle's state is non-finite or has run away."""
-        v = self.velocities().astype(np.float64)
-        x = self.positions()
-        F = self.deformation_gradients().astype(np.float64)
-        speed = np.sqrt((v ** 2).sum(1))
-        with np.errstate(all="ignore"):
-            J = np.linalg.det(F) if np.isfinite(F).all() else np.where(np.isfinite(F).all((1, 2)), 1.0, np.nan)
-            norm = np.sqrt((F ** 2).sum((1, 2)))
-            v_limit = self.dx / dt  # one cell per substep: beyond this the explicit scheme has failed
-            bad = (~np.isfinite(x).all(1) | ~np.isfinite(speed) | (speed > v_limit) | ~np.isfinite(norm)
-                   | (norm > MAX_STRETCH) | ~(J > 1.0 / MAX_STRETCH))
-        if not bad.any():
+        """Raise ComputationError if any particle's state is non-finite or has run away
+        (a device reduction: only per-material counts come back)."""
+        v_limit = self.dx / dt  # one cell per substep: beyond this the explicit scheme has failed
+        counts_all = self.frame_stats(v_limit).bad_per_material
+        if not counts_all.any():
             return
-        ids, counts = np.unique(self.material_id[bad], return_counts=True)
+        ids = np.nonzero(counts_all)[0]
+        counts = counts_all[ids]
         worst = int(ids[np.argmax(counts)])
         names = ", ".join(f"'{MATERIAL_NAMES[int(m)]}' ({int(c)})" for m, c in zip(ids, counts))
         raise ComputationError(
             f"simulation diverged at frame {self.frame} (t={self.time_s:.4g} s): material "
-            f"'{MATERIAL_NAMES[worst]}' particles ({int(bad.sum())} of {self.n}: {names}) reached non-finite "
+            f"'{MATERIAL_NAMES[worst]}' particles ({int(counts.sum())} of {self.n}: {names}) reached non-finite "
             f"or runaway velocity/deformation (limit {v_limit:.3g} m/s, ‖F‖ ≤ {MAX_STRETCH:g}); "
             "lower solver.cfl or check E/nu/density")
 
     def positions(self) -> np.ndarray:
-        """Particle positions (N,3) float32, world m."""
-        return self.x.numpy().copy()
+        """Particle positions (N,3) float32, world m, in the caller's particle order."""
+        return self._to_caller(self.x.numpy())
 
     def velocities(self) -> np.ndarray:
-        """Particle velocities (N,3) float32, m/s."""
-        return self.v.numpy().copy()
+        """Particle velocities (N,3) float32, m/s, in the caller's particle order."""
+        return self._to_caller(self.v.numpy())
 
     def deformation_gradients(self) -> np.ndarray:
         """Deformation gradients F (N,3,3) float32 (elastic part for plastic materials)."""
-        return self.F.numpy().copy()
+        return self._to_caller(self.F.numpy())
 
     def plastic_volume_ratio(self) -> np.ndarray:
         """Jp (N,) — plastic volume change of snow particles (1 elsewhere)."""
-        return self.Jp.numpy().copy()
+        return self._to_caller(self.Jp.numpy())
+
+    def yield_stresses(self) -> np.ndarray:
+        """Yield stress (N,) float32 Pa the kernels use (after any stiffness cap)."""
+        return self._to_caller(self.yield_stress.numpy())
+
+    def set_velocities(self, v_mps: np.ndarray) -> None:
+        """Overwrite the particle velocities ((N,3) m/s, caller's order); fixed particles keep 0."""
+        v = np.where(self.fixed[:, None], 0.0, np.broadcast_to(v_mps, (self.n, 3))).astype(np.float32)
+        self.v.assign(self._to_slots(v))
+
+    def set_plastic_volume_ratio(self, jp: np.ndarray) -> None:
+        """Overwrite Jp ((N,), caller's order), e.g. to start from compacted snow."""
+        self.Jp.assign(self._to_slots(np.asarray(jp, np.float32).reshape(self.n)))
