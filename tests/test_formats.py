@@ -250,3 +250,140 @@ def test_unknown_formats_give_one_line_naming_what_was_found(tmp_path: Path) -> 
     proc = subprocess.run([sys.executable, "-m", "pixie_gs", "info", str(path)], capture_output=True, text=True)
     assert proc.returncode == 1 and proc.stdout == "" and len(proc.stderr.strip().splitlines()) == 1
     assert needle in proc.stderr
+
+
+# ------------------------------------------------------------------ antimatter15 .splat
+def test_splat_file_written_from_the_spec_reads_exactly(tmp_path: Path) -> None:
+    """Two records packed by hand with struct from the published 32-byte layout."""
+    recs = [((1.0, -2.0, 0.5), (0.01, 0.02, 0.04), (255, 0, 128, 191), (255, 128, 128, 128)),
+            ((0.0, 0.0, 3.0), (1.0, 1.0, 1.0), (0, 51, 204, 64), (218, 128, 218, 128))]
+    raw = b"".join(struct.pack("<3f3f4B4B", *p, *s, *c, *q) for p, s, c, q in recs)
+    (tmp_path / "hand.splat").write_bytes(raw)
+    cloud = read_splat(tmp_path / "hand.splat")
+    assert cloud.source_format == "splat" and len(cloud) == 2 and cloud.sh_degree == 0
+    np.testing.assert_array_equal(cloud.means, [r[0] for r in recs])
+    np.testing.assert_allclose(cloud.scales, [r[1] for r in recs], rtol=1e-6)
+    np.testing.assert_allclose(cloud.rgb(), [[1.0, 0.0, 128 / 255], [0.0, 0.2, 0.8]], atol=1e-6)
+    np.testing.assert_allclose(cloud.opacities, [191 / 255, 64 / 255], atol=1e-6)
+    # (255−128)/128 = 0.992 → identity; (218−128)/128 = 0.703 on w and y → 90° about y
+    np.testing.assert_allclose(cloud.quats, [[1, 0, 0, 0], [math.sqrt(0.5), 0, math.sqrt(0.5), 0]], atol=1e-6)
+
+
+def test_splat_round_trip_within_quantisation(tmp_path: Path) -> None:
+    cloud = random_cloud(1000, rest=9, extras=True)
+    write_splat(cloud, tmp_path / "s.splat")
+    back = read_splat(tmp_path / "s.splat")
+    assert len(back) == len(cloud) and back.sh_degree == 0 and not back.extras
+    np.testing.assert_array_equal(back.means, cloud.means)  # float32 verbatim
+    np.testing.assert_allclose(back.log_scales, cloud.log_scales, atol=1e-5)  # exp/log in float32
+    assert np.abs(back.rgb() - cloud.rgb()).max() <= 0.5 / 255 + 1e-6  # 8-bit colour, rounded
+    assert np.abs(back.opacities - cloud.opacities).max() <= 0.5 / 255 + 1e-6
+    # each quaternion component off by ≤ 1/128 (rounding, or clipping +1 to 255/128 − 1): |Δq| ≤ 2/128,
+    # angle ≤ 2·|Δq| = 1/32 rad
+    assert quat_angle(back.rotations, cloud.rotations).max() <= 1 / 32
+
+
+# ------------------------------------------------------------------ Niantic .spz
+def plain_spz_v2(points: list[dict], frac: int = 12) -> bytes:
+    """A version-2 .spz packed by hand from the spec (RUB axes, so y and z are negated)."""
+    out = [struct.pack("<IIIBBBB", 0x5053474E, 2, len(points), 0, frac, 0, 0)]
+    for p in points:
+        for v in (p["xyz"][0], -p["xyz"][1], -p["xyz"][2]):
+            out.append(struct.pack("<i", round(v * (1 << frac)))[:3])
+    out += [bytes([round(p["alpha"] * 255)]) for p in points]
+    out += [bytes(round(c * 0.15 * 255 + 127.5) for c in p["f_dc"]) for p in points]
+    out += [bytes(round((s + 10) * 16) for s in p["log_scale"]) for p in points]
+    for p in points:
+        w, x, y, z = p["wxyz"]
+        x, y, z = x, -y, -z  # quaternion in RUB
+        s = 1 if w >= 0 else -1
+        out.append(bytes(round(c * s * 127.5 + 127.5) for c in (x, y, z)))
+    return gzip_bytes(b"".join(out))
+
+
+def gzip_bytes(data: bytes) -> bytes:
+    import gzip
+
+    return gzip.compress(data)
+
+
+SPZ_POINTS = [
+    {"xyz": (0.25, -1.5, 2.0), "alpha": 0.8, "f_dc": (0.0, 1.0, -1.0), "log_scale": (-4.0, -3.5, -6.0),
+     "wxyz": (1.0, 0.0, 0.0, 0.0)},
+    {"xyz": (-3.0, 0.125, 0.0), "alpha": 0.2, "f_dc": (2.0, -2.0, 0.5), "log_scale": (-2.0, -2.0, -2.0),
+     "wxyz": (math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5))},
+]
+
+
+def check_spz_points(cloud: SplatCloud) -> None:
+    np.testing.assert_allclose(cloud.means, [p["xyz"] for p in SPZ_POINTS], atol=0.5 / 4096 + 1e-7)
+    np.testing.assert_allclose(cloud.opacities, [p["alpha"] for p in SPZ_POINTS], atol=0.5 / 255)
+    np.testing.assert_allclose(cloud.sh_dc, [p["f_dc"] for p in SPZ_POINTS], atol=0.5 / (255 * 0.15) + 1e-6)
+    np.testing.assert_allclose(cloud.log_scales, [p["log_scale"] for p in SPZ_POINTS], atol=0.5 / 16)
+    # v2 bytes c/127.5 − 1 cannot hold 0 (off by 0.5/127.5 per component): angle ≤ 2·√3·0.5/127.5 ≈ 0.0136
+    assert quat_angle(cloud.rotations, np.array([p["wxyz"] for p in SPZ_POINTS])).max() < 0.014
+
+
+def test_spz_v2_written_from_the_spec_reads_back(tmp_path: Path) -> None:
+    (tmp_path / "hand.spz").write_bytes(plain_spz_v2(SPZ_POINTS))
+    cloud = read_splat(tmp_path / "hand.spz")
+    assert cloud.source_format == "spz" and len(cloud) == 2
+    check_spz_points(cloud)
+
+
+def test_spz_v4_zstd_streams_read(tmp_path: Path) -> None:
+    """A version-4 file built from the spec: 32-byte header, TOC, one ZSTD frame per attribute."""
+    zstd = pytest.importorskip("zstandard")
+    import gzip
+
+    legacy = gzip.decompress(plain_spz_v2(SPZ_POINTS))[16:]
+    n = len(SPZ_POINTS)
+    sizes = [9 * n, n, 3 * n, 3 * n, 3 * n]  # positions, alphas, colours, scales, rotations (v2 layout)
+    parts, off = [], 0
+    for size in sizes:
+        parts.append(legacy[off: off + size])
+        off += size
+    # version 4 stores smallest-three rotations: re-pack them by hand (w largest → index 3 in x,y,z,w)
+    rots = []
+    for p in SPZ_POINTS:
+        w, x, y, z = p["wxyz"]
+        q = [x, -y, -z, w]  # RUB, x,y,z,w order
+        big = max(range(4), key=lambda i: abs(q[i]))
+        if q[big] < 0:
+            q = [-c for c in q]
+        comp = big
+        for i in range(4):
+            if i != big:
+                comp = (comp << 10) | ((1 << 9) if q[i] < 0 else 0) | round(511 * abs(q[i]) / math.sqrt(0.5))
+        rots.append(struct.pack("<I", comp))
+    parts[4] = b"".join(rots)
+    frames = [zstd.ZstdCompressor().compress(p) for p in parts]
+    header = struct.pack("<IIIBBBBI12x", 0x5053474E, 4, n, 0, 12, 0, len(frames), 32)
+    toc = b"".join(struct.pack("<QQ", len(f), len(p)) for f, p in zip(frames, parts))
+    (tmp_path / "v4.spz").write_bytes(header + toc + b"".join(frames))
+    assert detect_format(tmp_path / "v4.spz") == "spz"
+    check_spz_points(read_splat(tmp_path / "v4.spz"))
+
+
+@pytest.mark.parametrize("version", [2, 3])
+def test_spz_round_trip_within_quantisation(tmp_path: Path, version: int) -> None:
+    from pixie_gs.formats import spz
+
+    cloud = random_cloud(1000, rest=24, extras=True)
+    spz.write(cloud, tmp_path / "r.spz", version=version)
+    back = read_splat(tmp_path / "r.spz")
+    assert back.sh_degree == 2 and not back.extras
+    assert np.abs(back.means - cloud.means).max() <= 0.5 / 4096 + 1e-6  # 24-bit fixed point, 12 fraction bits
+    assert np.abs(back.opacities - cloud.opacities).max() <= 0.5 / 255 + 1e-6
+    assert np.abs(back.sh_dc - cloud.sh_dc).max() <= 0.5 / (255 * 0.15) + 1e-5  # f_dc·0.15·255 + 127.5 in u8
+    assert np.abs(back.log_scales - cloud.log_scales).max() <= 0.5 / 16 + 1e-5  # (log σ + 10)·16 in u8
+    assert np.abs(back.sh_rest - cloud.sh_rest).max() <= 0.5 / 128 + 1e-6  # sh·128 + 128 in u8
+    # v3: 9-bit magnitudes of step √½/511 → angle ≤ 4·√3·ε, ε = √½/1022. v2: x,y,z off by ≤ 0.5/127.5
+    # each (|Δ| ≤ Δ = √3·0.5/127.5) and w = √(1 − |xyz|²) by ≤ √(2Δ + Δ²) (large near w ≈ 0), so the
+    # angle ≤ 2·√(Δ² + 2Δ + Δ²) ≈ 0.24 rad — why pixie-gs writes version 3
+    if version == 3:
+        bound = 4 * math.sqrt(3) * math.sqrt(0.5) / 1022 + 1e-4
+    else:
+        d = math.sqrt(3) * 0.5 / 127.5
+        bound = 2 * math.sqrt(2 * d * d + 2 * d) + 1e-3
+    assert quat_angle(back.rotations, cloud.rotations).max() <= bound

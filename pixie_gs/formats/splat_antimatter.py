@@ -15,7 +15,7 @@ from ..errors import InputError
 from ..splat import SH_C0, SplatCloud
 
 RECORD = np.dtype([("position", "<f4", (3,)), ("scale", "<f4", (3,)), ("rgba", "u1", (4,)), ("rot", "u1", (4,))])
-MIN_SCALE = 1e-20  # scales of 0 (underflowed exports) are read as this, not as log(0)
+MIN_SCALE = 1e-12  # scales of 0 (underflowed exports) are read as this (log σ ≈ −27.6), not as log(0)
 OPACITY_LOGIT_LIMIT = 40.0
 
 
