@@ -387,3 +387,44 @@ def test_spz_round_trip_within_quantisation(tmp_path: Path, version: int) -> Non
         d = math.sqrt(3) * 0.5 / 127.5
         bound = 2 * math.sqrt(2 * d * d + 2 * d) + 1e-3
     assert quat_angle(back.rotations, cloud.rotations).max() <= bound
+
+
+# ------------------------------------------------------------------ exports of gsplat / nerfstudio
+def test_gsplat_and_nerfstudio_style_plys_read(tmp_path: Path) -> None:
+    """gsplat's export (no normals, f_dc before f_rest), nerfstudio's (normals, unnormalised quats),
+    a float64 export with shuffled property order and an extra per-Gaussian property."""
+    rng = np.random.default_rng(5)
+    n = 64
+    cols = {"x": rng.normal(size=n), "y": rng.normal(size=n), "z": rng.normal(size=n)}
+    cols.update({f"f_dc_{i}": rng.normal(size=n) for i in range(3)})
+    cols.update({f"f_rest_{i}": rng.normal(size=n) * 0.1 for i in range(9)})
+    cols["opacity"] = rng.normal(size=n)
+    cols.update({f"scale_{i}": rng.uniform(-6, -2, n) for i in range(3)})
+    cols.update({f"rot_{i}": rng.normal(size=n) * 3 for i in range(4)})
+    gsplat_order = list(cols)
+    nerfstudio_order = ["x", "y", "z", "nx", "ny", "nz"] + gsplat_order[3:]
+    shuffled = list(reversed(gsplat_order)) + ["segment_id"]
+    cols.update({"nx": np.zeros(n), "ny": np.zeros(n), "nz": np.zeros(n), "segment_id": rng.integers(0, 9, n)})
+    for name, order, ftype in [("gsplat", gsplat_order, "<f4"), ("nerfstudio", nerfstudio_order, "<f4"),
+                               ("float64", shuffled, "<f8")]:
+        dtype = [(k, "<i4" if k == "segment_id" else ftype) for k in order]
+        table = np.empty(n, dtype=dtype)
+        for k in order:
+            table[k] = cols[k]
+        PlyData([PlyElement.describe(table, "vertex")]).write(str(tmp_path / f"{name}.ply"))
+        cloud = read_splat(tmp_path / f"{name}.ply")
+        assert cloud.source_format == "inria_ply" and cloud.sh_degree == 1, name
+        np.testing.assert_allclose(cloud.means[:, 1], cols["y"], rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(cloud.sh_rest[:, 8], cols["f_rest_8"], rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(cloud.rotations[:, 3], cols["rot_3"], rtol=1e-6, atol=1e-7)
+    np.testing.assert_array_equal(read_splat(tmp_path / "float64.ply").extras["segment_id"], cols["segment_id"])
+
+
+def test_gsplat_compressed_ply_with_empty_sh_element_reads(tmp_path: Path) -> None:
+    """gsplat's compressed export always declares `element sh N`, with no properties at SH degree 0."""
+    raw = GUITAR.read_bytes()
+    raw = raw.replace(b"end_header\n", b"element sh 768\nend_header\n", 1)
+    (tmp_path / "gs.ply").write_bytes(raw)
+    cloud = read_splat(tmp_path / "gs.ply")
+    assert cloud.sh_degree == 0
+    np.testing.assert_array_equal(cloud.means, read_splat(GUITAR).means)

@@ -94,6 +94,8 @@ def read(path: str | Path) -> SplatCloud:
     tables = {}
     for el in header.elements:
         dt = el.dtype("<")
+        if dt.itemsize == 0:
+            continue
         size = el.count * dt.itemsize
         tables[el.name] = raw[offset: offset + size].view(dt)
         offset += size
@@ -117,7 +119,7 @@ def read(path: str | Path) -> SplatCloud:
         logit = np.log(alpha) - np.log1p(-alpha)
     logit = np.clip(logit, -OPACITY_LOGIT_LIMIT, OPACITY_LOGIT_LIMIT)
     sh_rest = np.zeros((n, 0), np.float32)
-    if sh_el is not None:
+    if sh_el is not None and sh_el.names:  # gsplat writes an `sh` element with no properties at SH degree 0
         k = len(sh_el.names)
         if k not in (9, 24, 45) or sh_el.names != [f"f_rest_{i}" for i in range(k)]:
             raise InputError(f"compressed PLY sh element has {k} properties; expected f_rest_0… (9, 24 or 45)",
