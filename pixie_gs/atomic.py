@@ -44,3 +44,108 @@ def check_distinct_output(inp: str | Path, out: str | Path, force: bool = False)
     inp, out = Path(inp), Path(out)
     if out.exists() and inp.exists() and os.path.samefile(inp, out) and not force:
         raise InputError("output is the input file; refusing to overwrite it (use --force)", out)
+
+
+# ---------------------------------------------------------------------------------- staged folders
+STAGING_TAG = ".pixie-staging-"
+
+
+def exchange_paths(a: Path, b: Path) -> bool:
+    """Swap two directory entries of one file system atomically (Linux renameat2 RENAME_EXCHANGE).
+
+    Returns False when the platform or file system cannot, so the caller falls back to two renames.
+    """
+    import ctypes
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    renameat2.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    if renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (22, 38, 95):  # EINVAL, ENOSYS, EOPNOTSUPP: not supported here
+        return False
+    raise OSError(err, os.strerror(err), str(a), None, str(b))
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_staging(target: Path) -> None:
+    """Delete staging folders of `target` left by runs that were killed (their process is gone)."""
+    import shutil
+
+    parent = target.parent
+    if not parent.is_dir():
+        return
+    prefix = f".{target.name}{STAGING_TAG}"
+    for entry in parent.iterdir():
+        if not entry.name.startswith(prefix):
+            continue
+        try:
+            pid = int(entry.name[len(prefix):].split("-", 1)[0])
+        except ValueError:
+            continue
+        if pid != os.getpid() and not _pid_alive(pid):
+            if entry.name.endswith("-old") and not target.exists():
+                os.rename(entry, target)  # killed between the two renames of a fallback swap: put it back
+            else:
+                shutil.rmtree(entry, ignore_errors=True)
+
+
+class StagedDirectory:
+    """Build a folder's new content beside it, then swap it in whole.
+
+    `path` is a fresh hidden folder next to `target` (same file system). `commit()` puts it at
+    `target`: a plain rename when `target` does not exist, otherwise an atomic exchange (two
+    renames where the OS cannot), after hard-linking into it the entries of the old folder that
+    `keep(name)` selects (so they survive); the old content is then deleted. `abort()` (or any
+    exception/signal inside `with`) deletes the staging folder and leaves `target` untouched.
+    """
+
+    def __init__(self, target: str | Path) -> None:
+        self.target = Path(os.path.abspath(target))
+        if not self.target.parent.is_dir():
+            raise InputError("parent directory does not exist", self.target.parent)
+        remove_stale_staging(self.target)
+        self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}{STAGING_TAG}{os.getpid()}-",
+                                          dir=self.target.parent))
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(self.path, 0o777 & ~umask)
+
+    def commit(self, keep=lambda name: False) -> Path:
+        import shutil
+
+        if not self.target.exists():
+            os.rename(self.path, self.target)
+            return self.target
+        for entry in self.target.iterdir():
+            if keep(entry.name):
+                os.link(entry, self.path / entry.name, follow_symlinks=False)
+        if not exchange_paths(self.path, self.target):
+            old = self.path.with_name(self.path.name + "-old")
+            os.rename(self.target, old)
+            os.rename(self.path, self.target)
+            self.path = old
+        shutil.rmtree(self.path, ignore_errors=True)  # now the previous content
+        return self.target
+
+    def abort(self) -> None:
+        import shutil
+
+        shutil.rmtree(self.path, ignore_errors=True)

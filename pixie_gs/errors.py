@@ -64,3 +64,29 @@ def require_finite_result(values: dict[str, object], what: str, path: str | Path
             where = f", first at index {first[0] if len(first) == 1 else first}" if arr.ndim else ""
             raise ComputationError(f"{what}: {name} is not finite (NaN/inf) in {int(bad.sum())} "
                                    f"value(s){where}; nothing was written", path)
+
+
+MAX_JSON_BYTES = 100_000_000  # index files and tables are small; refuse absurd ones before reading
+
+
+def read_json_file(path: str | Path, kind: str) -> object:
+    """Parse a JSON file a user gave (`kind`: e.g. "a dataset index"): one-line InputError for a
+    non-regular or huge file, bytes that are not UTF-8, bad JSON, absurd nesting or huge integers."""
+    import json
+
+    path = require_file(path, kind)
+    size = path.stat().st_size
+    if size > MAX_JSON_BYTES:
+        raise InputError(f"is {size} bytes; {kind} is at most {MAX_JSON_BYTES}", path)
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"not UTF-8 text (byte {exc.start}); {kind} is a JSON file", path) from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"not valid JSON ({exc.msg} at line {exc.lineno})", path) from None
+    except RecursionError:
+        raise InputError("JSON nested too deeply", path) from None
+    except ValueError as exc:  # e.g. an integer literal with thousands of digits
+        raise InputError(f"not usable JSON ({str(exc).splitlines()[0][:100]})", path) from None

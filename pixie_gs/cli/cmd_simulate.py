@@ -8,6 +8,7 @@ from ..devices import DEVICE_CHOICES, DEVICE_HELP
 from ..errors import InputError
 
 PRESET_CHOICES = ("drop", "wind", "push")
+FPS_RANGE = (1e-3, 1e5)  # output frames per second: beyond, frame times overflow or vanish
 
 
 def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.ArgumentParser:
@@ -51,14 +52,15 @@ def run(args: argparse.Namespace) -> int:
     from .. import viz
     from ..atomic import check_distinct_output
     from ..progress import stage
-    from ..sim.frames import FrameWriter
+    from ..limits import require_disk
+    from ..sim.frames import FrameWriter, check_output_dir, estimate_output_bytes
     from ..sim.run import FrameState, material_arrays, placement_transform, simulate
     from ..splat import read_splat_valid
 
     if args.frames < 1:
         raise InputError(f"--frames must be ≥ 1, got {args.frames}")
-    if not args.fps > 0:
-        raise InputError(f"--fps must be > 0, got {args.fps:g}")
+    if not FPS_RANGE[0] <= args.fps <= FPS_RANGE[1]:
+        raise InputError(f"--fps must be within {FPS_RANGE[0]:g}..{FPS_RANGE[1]:g} frames per second, got {args.fps:g}")
     cloud = read_splat_valid(args.input, args.drop_invalid)
     material_arrays(cloud)  # one-line error before anything is created
     scene = load_scene(args)
@@ -66,8 +68,15 @@ def run(args: argparse.Namespace) -> int:
         check_distinct_output(args.input, args.rrd, force=False)
         if Path(args.rrd).resolve().parent == Path(args.out).resolve():
             raise InputError("put the --rrd file outside the --out directory", args.rrd)
-    writer = FrameWriter(args.out, cloud, force=args.force)
-    rec = viz.open_recording("pixie-simulate", rrd_path=args.rrd, spawn=args.spawn)
+    check_output_dir(args.out, args.force, inputs=(args.input, args.scene))
+    require_disk(estimate_output_bytes(cloud, args.frames), f"{args.frames} frames of {len(cloud)} Gaussians",
+                 Path(args.out).resolve().parent)
+    writer = FrameWriter(args.out, cloud, force=args.force, frames=args.frames, inputs=(args.input, args.scene))
+    try:
+        rec = viz.open_recording("pixie-simulate", rrd_path=args.rrd, spawn=args.spawn)
+    except BaseException:
+        writer.abort()
+        raise
     tf = placement_transform(cloud.means, scene)
     entities = viz.MATERIAL_VIEW_ENTITIES
 
@@ -83,11 +92,11 @@ def run(args: argparse.Namespace) -> int:
     stage(f"simulating {len(cloud)} Gaussians of {args.input}: {args.frames} frames at {args.fps:g} fps")
     try:
         traj = simulate(cloud, scene, args.frames, args.fps, device=args.device, on_frame=on_frame,
-                        fill=args.fill)
+                        fill=args.fill, positions_out=writer.positions)
         preview = writer.write_preview(traj.t, traj.x, scene.up)
-        tracks = writer.finish(traj.t, traj.x)
         viz.send_layout(rec, fps=args.fps, shared=["world"])
         saved = viz.close_recording(rec)
+        tracks = writer.finish(traj.t, traj.x)  # last: the old output is replaced only by a complete run
     except BaseException:
         writer.abort()
         viz.discard_recording(rec)

@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, read_json_file
 from ..materials import MATERIAL_NAMES
 
 DEFAULT_TABLE = Path(__file__).resolve().parent.parent / "data" / "classes.json"
@@ -166,16 +166,23 @@ def _parse_class(name: str, raw: dict, widen: dict, source: str) -> ClassSpec:
 def load_class_table(path: str | Path | None = None) -> dict[str, ClassSpec]:
     """Read and validate the class table (default: the packaged classes.json), in file order."""
     path = Path(path) if path is not None else DEFAULT_TABLE
-    try:
-        raw = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError("no such class table", path) from None
-    except json.JSONDecodeError as exc:
-        raise InputError(f"not valid JSON ({exc.msg} at line {exc.lineno})", path) from None
+    if not path.exists():
+        raise InputError("no such class table", path)
+    raw = read_json_file(path, "a class table")
     if not isinstance(raw, dict) or not isinstance(raw.get("classes"), dict) or not raw["classes"]:
         raise InputError("needs a non-empty 'classes' object", path)
-    widen = {"E_rel": 0.2, "density_rel": 0.2, "nu_abs": 0.03, **raw.get("widen", {})}
-    return {name: _parse_class(name, craw, widen, str(path)) for name, craw in raw["classes"].items()}
+    widen_raw = raw.get("widen", {})
+    if not isinstance(widen_raw, dict) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and 0 <= v < 1
+            for v in widen_raw.values()):
+        raise InputError("'widen' must map E_rel/density_rel/nu_abs to numbers in [0, 1)", path)
+    widen = {"E_rel": 0.2, "density_rel": 0.2, "nu_abs": 0.03, **widen_raw}
+    try:
+        return {name: _parse_class(name, craw, widen, str(path)) for name, craw in raw["classes"].items()}
+    except (TypeError, ValueError, AttributeError, KeyError, OverflowError) as exc:  # wrong JSON types
+        text = str(exc).splitlines()[0][:120] if str(exc) else ""
+        raise InputError(f"malformed class table (a value of the wrong type: {type(exc).__name__} {text})",
+                         path) from None
 
 
 def sample_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:

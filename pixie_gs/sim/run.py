@@ -196,12 +196,15 @@ def simulate(
     fill: bool = False,
     keep_deformation: bool = False,
     quiet: bool = False,
+    positions_out: np.ndarray | None = None,
 ) -> Trajectory:
     """Simulate `cloud` in `scene` for `frames` output frames (frame 0 is the initial state at
     t = 0, frame i at t = i / fps s). `on_frame` is called with each FrameState as soon as it
     is ready (used to stream frames to disk and rerun). `keep_deformation` stores F per frame in
     the Trajectory (T·N·36 bytes); `quiet` drops the stage line and progress bar (for callers
-    that simulate in loops). Raises InputError for unusable input, ComputationError on divergence."""
+    that simulate in loops); `positions_out` (frames, N, 3) float32, e.g. a memory-mapped file,
+    receives the trajectory instead of a new in-memory array (so memory stays flat however many
+    frames). Raises InputError for unusable input, ComputationError on divergence."""
     from ..devices import resolve_warp_device
     from .solver import MPMSolver
 
@@ -217,7 +220,9 @@ def simulate(
     x0_in = cloud.means.astype(np.float32)
     x0_world = particles.x[:n].astype(np.float64)
     t = np.arange(frames, dtype=np.float64) / fps
-    xs = np.empty((frames, n, 3), np.float32)
+    if positions_out is not None and (positions_out.shape != (frames, n, 3) or positions_out.dtype != np.float32):
+        raise ValueError(f"positions_out must be float32 ({frames}, {n}, 3), got {positions_out.dtype} {positions_out.shape}")
+    xs = np.empty((frames, n, 3), np.float32) if positions_out is None else positions_out
     xs[0] = x0_in
     Fs = np.empty((frames, n, 3, 3), np.float32) if keep_deformation else None
     if Fs is not None:
