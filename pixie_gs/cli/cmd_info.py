@@ -1,4 +1,4 @@
-"""`pixie info IN.ply`: what a splat file holds."""
+"""`pixie info IN`: what a splat file holds (any format pixie-gs reads, detected by content)."""
 from __future__ import annotations
 
 import argparse
@@ -13,9 +13,11 @@ from ..splat import read_splat_valid
 def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "info", parents=parents, help="count, bounds, SH degree, properties, material statistics",
-        description="Print what a 3DGS .ply holds.", epilog="example: pixie info scene.ply",
+        description="Print what a splat file holds: its format (found by content: INRIA 3DGS .ply, SuperSplat "
+        "compressed .ply, .splat or .spz), count, bounds, SH degree, properties and materials.",
+        epilog="example: pixie info scene.ply",
     )
-    p.add_argument("input", metavar="IN.ply", help="3D Gaussian splat file")
+    p.add_argument("input", metavar="IN", help="3D Gaussian splat file (.ply, .compressed.ply, .splat, .spz)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     p.add_argument("--drop-invalid", action="store_true",
                    help="remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
@@ -29,6 +31,7 @@ def summarize(path: str, drop_invalid: bool = False) -> dict:
     lo, hi = cloud.bounds()
     info: dict = {
         "file": path,
+        "format": cloud.source_format,
         "count": len(cloud),
         "bounds_min": [round(float(v), 6) for v in lo],
         "bounds_max": [round(float(v), 6) for v in hi],
@@ -55,7 +58,10 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(info))
         return 0
+    from ..formats import LABELS
+
     print(f"file        {info['file']}")
+    print(f"format      {LABELS.get(info['format'], info['format'])}")
     print(f"gaussians   {info['count']}")
     print(f"bounds      min {info['bounds_min']}  max {info['bounds_max']}")
     print(f"sh degree   {info['sh_degree']}")
