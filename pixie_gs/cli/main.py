@@ -15,7 +15,7 @@ import sys
 from ..errors import PixieError
 from ..progress import set_quiet
 
-COMMANDS = ["demo", "info", "convert", "generate", "train", "evaluate", "annotate", "simulate", "diagnose"]
+COMMANDS = ["demo", "info", "convert", "generate", "train", "evaluate", "annotate", "simulate", "render", "diagnose"]
 
 
 def common_options() -> argparse.ArgumentParser:

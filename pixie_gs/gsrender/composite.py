@@ -1,0 +1,75 @@
+"""Per-pixel front-to-back compositing as a Warp kernel (CPU and CUDA from the same code).
+
+One thread per pixel walks its tile's depth-sorted Gaussian list, as the 3DGS CUDA rasteriser
+does: α = min(0.99, o · exp(−½ dᵀ Σ₂⁻¹ d)), skip α < 1/255, stop before transmittance < 1e-4.
+The lists come from `raster._tile_pairs` (torch); arrays are shared with torch without copies.
+"""
+from __future__ import annotations
+
+import torch
+import warp as wp
+
+from ..devices import init_warp_quietly
+
+
+@wp.kernel
+def _composite(ranges: wp.array(dtype=wp.int32, ndim=2), order: wp.array(dtype=wp.int32),
+               mean2d: wp.array(dtype=wp.vec2), conic: wp.array(dtype=wp.vec3),
+               opacity: wp.array(dtype=wp.float32), min_power: wp.array(dtype=wp.float32), colour: wp.array(dtype=wp.vec3),
+               tiles_x: int, tile: int, alpha_max: float, alpha_min: float, t_min: float,
+               background: wp.vec3, image: wp.array(dtype=wp.vec3, ndim=2),
+               trans: wp.array(dtype=wp.float32, ndim=2)):
+    row, col = wp.tid()
+    t = (row // tile) * tiles_x + col // tile
+    px = float(col) + 0.5
+    py = float(row) + 0.5
+    T = float(1.0)
+    c = wp.vec3(0.0, 0.0, 0.0)
+    for k in range(ranges[t, 0], ranges[t, 1]):
+        i = order[k]
+        m = mean2d[i]
+        q = conic[i]
+        dx = px - m[0]
+        dy = py - m[1]
+        power = -0.5 * (q[0] * dx * dx + q[2] * dy * dy) - q[1] * dx * dy
+        if power > 0.0 or power < min_power[i]:  # min_power: where o · exp(power) = 1/255
+            continue
+        alpha = wp.min(alpha_max, opacity[i] * wp.exp(power))
+        if alpha < alpha_min:
+            continue
+        t_next = T * (1.0 - alpha)
+        if t_next < t_min:
+            break
+        c = c + colour[i] * (alpha * T)
+        T = t_next
+    image[row, col] = c + background * T
+    trans[row, col] = T
+
+
+def composite(ranges: torch.Tensor, order: torch.Tensor, mean2d: torch.Tensor, conic: torch.Tensor,
+              opacity: torch.Tensor, colours: torch.Tensor, width: int, height: int, tiles_x: int,
+              tile: int, alpha_max: float, alpha_min: float, t_min: float,
+              background: tuple[float, float, float]) -> tuple[torch.Tensor, torch.Tensor]:
+    """(image (H,W,3), transmittance (H,W)) as torch tensors on the inputs' device.
+
+    ranges (n_tiles, 2) int32: [start, end) of each tile in `order` (int32 Gaussian indices)."""
+    init_warp_quietly()
+    dev = colours.device
+    wdev = "cpu" if dev.type == "cpu" else f"cuda:{dev.index or 0}"
+    image = torch.empty(height, width, 3, dtype=torch.float32, device=dev)
+    trans = torch.empty(height, width, dtype=torch.float32, device=dev)
+
+    keep = []  # contiguous copies stay alive until the kernel has run
+
+    def w(x: torch.Tensor, dtype):
+        keep.append(x.contiguous())
+        return wp.from_torch(keep[-1], dtype=dtype)
+
+    wp.launch(_composite, dim=(height, width), device=wdev, inputs=[
+        w(ranges, wp.int32), w(order, wp.int32), w(mean2d, wp.vec2), w(conic, wp.vec3),
+        w(opacity, wp.float32), w(torch.log(alpha_min / opacity.clamp(min=1e-30)), wp.float32), w(colours, wp.vec3), int(tiles_x), int(tile), float(alpha_max),
+        float(alpha_min), float(t_min), wp.vec3(*[float(v) for v in background]),
+        w(image, wp.vec3), w(trans, wp.float32)])
+    if wdev != "cpu":
+        wp.synchronize_device(wdev)
+    return image, trans
