@@ -255,3 +255,70 @@ def test_bad_mesh_file_gives_one_line_error_and_no_output(tmp_path, capsys, name
     assert len(lines) == 1 and message in lines[0] and name in lines[0]
     assert not out.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ([name] if content is not None else [])
+
+
+# ---------------------------------------------------------------- splat → splat between formats
+GUITAR = __import__("pathlib").Path(__file__).parent / "data" / "guitar_slice.compressed.ply"
+
+
+def _splat_with_extras(n: int = 600):
+    from pixie_gs.splat import SplatCloud
+
+    rng = np.random.default_rng(4)
+    cloud = SplatCloud.from_arrays(rng.uniform(-1, 1, (n, 3)), log_scales=rng.uniform(-5, -2, (n, 3)),
+                                   rotations=rng.normal(size=(n, 4)), opacity_logits=rng.uniform(-4, 4, n),
+                                   rgb=rng.uniform(0, 1, (n, 3)), sh_rest=rng.uniform(-0.5, 0.5, (n, 45)))
+    cloud.set_materials(rng.integers(0, 3, n), np.full(n, 1e6), np.full(n, 0.3), np.full(n, 400))
+    return cloud
+
+
+def test_convert_between_splat_formats_by_output_name(tmp_path, capsys):
+    src = tmp_path / "scene.ply"
+    _splat_with_extras().write(src)
+    before = src.read_bytes()
+    for name, fmt in [("scene.splat", "splat"), ("scene.spz", "spz"), ("scene.compressed.ply", "compressed_ply")]:
+        code, err = run_cli(["convert", str(src), str(tmp_path / name)], capsys)
+        assert code == 0, err
+        back = read_splat(tmp_path / name)
+        assert back.source_format == fmt and len(back) == 600
+        lossy = [line for line in err.splitlines() if "lossy" in line]
+        assert len(lossy) == 1 and "4 extra properties (material_id, E, nu, density) dropped" in lossy[0], err
+    assert src.read_bytes() == before  # the input is never touched
+    # .spz → INRIA PLY: nothing lost on the way out, SH degree kept
+    code, err = run_cli(["convert", str(tmp_path / "scene.spz"), str(tmp_path / "back.ply")], capsys)
+    assert code == 0 and "lossy" not in err
+    ply = read_splat(tmp_path / "back.ply")
+    assert ply.source_format == "inria_ply" and ply.sh_degree == 3
+    np.testing.assert_allclose(ply.means, read_splat(src).means, atol=0.5 / 4096 + 1e-6)
+
+
+def test_convert_splat_message_names_dropped_sh(tmp_path, capsys):
+    src = tmp_path / "s.ply"
+    _splat_with_extras().write(src)
+    code, err = run_cli(["convert", str(src), str(tmp_path / "s.splat")], capsys)
+    assert code == 0
+    line = next(l for l in err.splitlines() if "lossy" in l)
+    assert ".splat keeps SH degree 0 only" in line and "45 f_rest" in line
+
+
+def test_convert_format_flag_overrides_the_name_and_real_file_converts(tmp_path, capsys):
+    out = tmp_path / "guitar.ply"
+    code, err = run_cli(["convert", str(GUITAR), str(out), "--format", "splat", "-q"], capsys)
+    assert code == 0
+    assert out.stat().st_size == 768 * 32  # a .splat in a .ply name, as asked
+    got, ref = read_splat(out), read_splat(GUITAR)
+    assert got.source_format == "splat"
+    np.testing.assert_array_equal(got.means, ref.means)
+    assert np.abs(got.opacities - ref.opacities).max() <= 0.5 / 255 + 1e-6
+
+
+def test_convert_refuses_mesh_flags_for_splat_input_and_bad_splats(tmp_path, capsys):
+    src = tmp_path / "s.ply"
+    _splat_with_extras(50).write(src)
+    code, err = run_cli(["convert", str(src), str(tmp_path / "o.spz"), "--fill"], capsys)
+    assert code == 1 and "apply to mesh input" in err and not (tmp_path / "o.spz").exists()
+    bad = tmp_path / "bad.spz"
+    bad.write_bytes(b"\x1f\x8b" + b"\x00" * 30)
+    code, err = run_cli(["convert", str(bad), str(tmp_path / "o.ply")], capsys)
+    assert code == 1 and len(err.strip().splitlines()) == 1 and "gzip" in err
+    assert not (tmp_path / "o.ply").exists()
