@@ -469,6 +469,11 @@ def to_structured(cloud: SplatCloud) -> np.ndarray:
 def write_splat(cloud: SplatCloud, path: str | Path, fmt: str | None = None) -> None:
     """Write `cloud` atomically (temp file + rename): binary little-endian 3DGS `.ply` unless the
     name ends in .splat, .spz or .compressed.ply (or `fmt` names a format of pixie_gs.formats)."""
-    from .formats import write_any
+    from .formats import format_for_path, lossy_note, normalise_format, write_any
+    from .progress import stage
 
-    write_any(cloud, path, fmt)
+    target = normalise_format(fmt) if fmt else format_for_path(path)
+    note = lossy_note(cloud, target)
+    if note and cloud.extras:  # a command's output named .splat/.spz/.compressed.ply loses its attributes
+        stage(f"{path}: lossy: {note}")
+    write_any(cloud, path, target)
