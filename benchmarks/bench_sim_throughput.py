@@ -2,10 +2,19 @@
 
 For each size (default 100k and 1M particles) an elastic jelly block (E = 1e5 Pa, ν = 0.3,
 ρ = 1000 kg/m³, 8 particles per cell) rests on the ground under gravity; the Warp MPMSolver
-runs `--warmup` substeps (kernel compilation, caches), then `--substeps` timed substeps
-(device synchronised before and after). Figures printed:
+runs `--warmup` substeps (kernel compilation, caches), then `--substeps` timed substeps as ONE
+`step_frame` call (device synchronised before and after; the frame's CFL reduction, launches,
+divergence guard and any re-sort are all inside the timed figure). Figures printed:
 
+- particle order (`--order`, several allowed): `lattice` = the block as generated, solver sorting
+  off (the best case); `random` = particles shuffled (what a splat file gives), solver sorting
+  off; `sorted` = particles shuffled, the solver keeps them in grid-cell order (its default,
+  re-sorted every 4 frames);
 - particle-substeps/s = particles × substeps / seconds;
+- per-kernel split (P2G, grid update, G2P) per substep, from a second, instrumented frame (CUDA
+  events after each kernel; on the CPU, where launches are synchronous, wall clock), and the
+  host/device split of the timed frame: host seconds in the re-sort, the CFL reduction, issuing
+  the launches, and the guard (which includes waiting for the device to finish the frame);
 - memory per particle: bytes of the solver's Warp arrays whose length is the particle count
   (particle state), and all of its Warp arrays (grid included) divided by the particle count;
 - baseline ratio: the same substep written straightforwardly in numpy (quadratic B-spline
@@ -31,9 +40,9 @@ E_PA, NU, RHO = 1e5, 0.3, 1000.0
 PARTICLES_PER_CELL = 8
 
 
-def block_problem(n_target: int, ppc: int = PARTICLES_PER_CELL):
+def block_problem(n_target: int, ppc: int = PARTICLES_PER_CELL, shuffle: bool = False):
     """(Particles, Scene): a cube block of ≈ n_target particles on a lattice of `ppc` per cell,
-    resting on the ground in the middle of a domain twice its size."""
+    resting on the ground in the middle of a domain twice its size (`shuffle`: in random order)."""
     from pixie_gs.sim.particles import Particles
     from pixie_gs.sim.scene import Scene
 
@@ -48,6 +57,8 @@ def block_problem(n_target: int, ppc: int = PARTICLES_PER_CELL):
     x = np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)
     side = side_particles * spacing
     x = x - np.array([side / 2, side / 2, 0.0])
+    if shuffle:
+        x = x[np.random.default_rng(0).permutation(len(x))]
     scene = Scene.from_dict({"object": {"size_m": side, "position": [0, 0, 0]},
                              "domain": {"size_m": grid * dx, "grid": grid}})
     particles = Particles(x=x, v=np.zeros(3), volume=spacing ** 3, E=E_PA, nu=NU, density=RHO, material_id=0)
@@ -72,14 +83,49 @@ def warp_arrays_bytes(solver, n: int) -> tuple[int, int]:
     return per_particle, total
 
 
-def time_warp(n_target: int, device: str, warmup: int, substeps: int) -> dict:
+class KernelTimer:
+    """solver.kernel_timer: time between consecutive marks, summed per kernel name (CUDA events
+    on a GPU, wall clock on the CPU where Warp launches are synchronous)."""
+
+    def __init__(self, device: str) -> None:
+        import warp as wp
+
+        self.wp, self.device = wp, device
+        self.cuda = device.startswith("cuda")
+        self.marks: list[tuple[str, object]] = []
+        self.start()
+
+    def _now(self):
+        if self.cuda:
+            ev = self.wp.Event(self.device, enable_timing=True)
+            self.wp.record_event(ev)
+            return ev
+        return time.perf_counter()
+
+    def start(self) -> None:
+        self.marks = [("start", self._now())]
+
+    def mark(self, name: str) -> None:
+        self.marks.append((name, self._now()))
+
+    def seconds(self) -> dict[str, float]:
+        self.wp.synchronize_device(self.device)
+        out: dict[str, float] = {}
+        for (_, a), (name, b) in zip(self.marks, self.marks[1:]):
+            dt = self.wp.get_event_elapsed_time(a, b) / 1e3 if self.cuda else b - a
+            out[name] = out.get(name, 0.0) + dt
+        return out
+
+
+def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str = "lattice",
+              p2g: str = "auto") -> dict:
     import warp as wp
 
     from pixie_gs.sim.solver import MPMSolver
 
-    particles, scene = block_problem(n_target)
+    particles, scene = block_problem(n_target, shuffle=order != "lattice")
     n = len(particles)
-    solver = MPMSolver(particles, scene, device)
+    solver = MPMSolver(particles, scene, device, sort_every=4 if order == "sorted" else 0, p2g=p2g)
     dt = float(solver.dt)
     # step_frame(k·dt) runs k substeps of the CFL dt (the solver's own counter says how many)
     solver.step_frame(warmup * dt * (1 - 1e-6))
@@ -90,11 +136,30 @@ def time_warp(n_target: int, device: str, warmup: int, substeps: int) -> dict:
     wp.synchronize_device(device)
     seconds, cpu_seconds = time.perf_counter() - t0, time.process_time() - c0
     substeps = (solver.particle_substeps - done) // n
+    host = dict(solver.timing)
+    # the instrumented frame: per-kernel device time
+    profiled = max(1, min(substeps, 50))
+    timer = KernelTimer(device)
+    solver.kernel_timer = timer
+    solver.step_frame(profiled * dt * (1 - 1e-6))
+    solver.kernel_timer = None
+    kernels = {k: v / solver.substeps_last_frame for k, v in timer.seconds().items()}
+    # one CFL/guard reduction and one re-sort, each timed alone
+    wp.synchronize_device(device)
+    t = time.perf_counter()
+    for _ in range(5):
+        solver.frame_stats()
+    reduction_s = (time.perf_counter() - t) / 5
+    t = time.perf_counter()
+    solver._resort()
+    wp.synchronize_device(device)
+    sort_s = time.perf_counter() - t
     x = np.asarray(solver.positions())
     assert np.isfinite(x).all(), "block diverged"
     pp, total = warp_arrays_bytes(solver, n)
-    return {"n": n, "seconds": seconds, "cpu_seconds": cpu_seconds, "substeps": substeps,
-            "rate": n * substeps / seconds, "bytes_particle_state": pp / n, "bytes_all_per_particle": total / n, "dt": dt}
+    return {"n": n, "order": order, "p2g": solver.p2g_kind, "seconds": seconds, "cpu_seconds": cpu_seconds, "substeps": substeps,
+            "rate": n * substeps / seconds, "bytes_particle_state": pp / n, "bytes_all_per_particle": total / n,
+            "dt": dt, "host": host, "kernels": kernels, "reduction_s": reduction_s, "sort_s": sort_s}
 
 
 # ---------------------------------------------------------------------------------- numpy baseline
@@ -176,6 +241,10 @@ def main() -> None:
     parser.add_argument("--substeps", type=int, default=0, help="timed substeps (default: 20 cpu, 200 cuda)")
     parser.add_argument("--baseline-particles", type=int, default=20_000)
     parser.add_argument("--baseline-substeps", type=int, default=3)
+    parser.add_argument("--order", nargs="+", default=["random", "sorted"], choices=["lattice", "random", "sorted"],
+                        help="particle order(s) to time (see above)")
+    parser.add_argument("--p2g", nargs="+", default=["auto"], choices=["auto", "tiled", "atomic"],
+                        help="P2G kernel(s): tiled (shared-memory sums), atomic (the plain one), auto (solver default)")
     args = parser.parse_args()
 
     from pixie_gs.devices import resolve_warp_device
@@ -193,22 +262,36 @@ def main() -> None:
           f"({base['substeps']} substeps in {base['seconds']:.2f} s wall, {base['cpu_seconds']:.2f} s process CPU)")
     results = []
     for n in args.sizes:
-        r = time_warp(n, device, args.warmup, substeps)
-        results.append(r)
-        cpu_rate = f" [{r['n'] * r['substeps'] / r['cpu_seconds'] / 1e6:.3f} M per process-CPU s]" \
-            if device == "cpu" and r["cpu_seconds"] > 0 else ""
-        print(f"warp {device:<6} {r['n']:>12} particles  {r['rate'] / 1e6:10.3f} M particle-substeps/s{cpu_rate} "
-              f"({r['substeps']} substeps in {r['seconds']:.2f} s wall, {r['cpu_seconds']:.2f} s process CPU, "
-              f"dt {r['dt']:.2e} s)  "
-              f"memory {r['bytes_particle_state']:.0f} B/particle state, {r['bytes_all_per_particle']:.0f} B/particle "
-              f"incl. grid  ratio vs numpy baseline {r['rate'] / base['rate']:.1f}x")
-    if len(results) >= 2:
-        a, b = results[0], results[-1]
-        print(f"scaling {a['n']} -> {b['n']} particles: throughput ratio {b['rate'] / a['rate']:.2f}")
+        for order, p2g in [(o, k) for o in args.order for k in args.p2g]:
+            r = time_warp(n, device, args.warmup, substeps, order, p2g)
+            results.append(r)
+            cpu_rate = f" [{r['n'] * r['substeps'] / r['cpu_seconds'] / 1e6:.3f} M per process-CPU s]" \
+                if device == "cpu" and r["cpu_seconds"] > 0 else ""
+            print(f"warp {device:<6} {r['n']:>9} particles {order:<7} P2G {r['p2g']:<6} {r['rate'] / 1e6:10.3f} M particle-substeps/s"
+                  f"{cpu_rate} ({r['substeps']} substeps in one step_frame, {r['seconds']:.3f} s wall, "
+                  f"{r['cpu_seconds']:.2f} s process CPU, dt {r['dt']:.2e} s)  "
+                  f"memory {r['bytes_particle_state']:.0f} B/particle state, {r['bytes_all_per_particle']:.0f} B/particle "
+                  f"incl. grid  ratio vs numpy baseline {r['rate'] / base['rate']:.1f}x")
+            k, h = r["kernels"], r["host"]
+            per_sub = sum(k.values())
+            print(f"    per substep (device): P2G {k.get('p2g', 0) * 1e3:.3f} ms, grid {k.get('grid', 0) * 1e3:.3f} ms, "
+                  f"G2P {k.get('g2p', 0) * 1e3:.3f} ms = {per_sub * 1e3:.3f} ms "
+                  f"(kernels alone: {r['n'] / per_sub / 1e6:.1f} M particle-substeps/s)")
+            print(f"    timed frame, host seconds: re-sort {h['sort_s']:.4f}, CFL reduction {h['stats_s']:.4f}, "
+                  f"issuing {r['substeps']} substeps {h['launch_s']:.4f}, guard incl. waiting for the device "
+                  f"{h['guard_s']:.4f}; one reduction {r['reduction_s'] * 1e3:.3f} ms, one re-sort "
+                  f"{r['sort_s'] * 1e3:.2f} ms (peak +{2 * 8 + 36} B/particle while sorting)")
+    for order in args.order:
+        rows = [r for r in results if r["order"] == order and r["p2g"] == results[0]["p2g"]]
+        if len(rows) >= 2:
+            a, b = rows[0], rows[-1]
+            print(f"scaling {a['n']} -> {b['n']} particles ({order}): throughput ratio {b['rate'] / a['rate']:.2f}")
     if device.startswith("cuda"):
-        top = results[-1]
-        print(f"target >= 200 M particle-substeps/s at 1M particles: "
-              f"{'MET' if top['rate'] >= 200e6 else 'NOT MET'} ({top['rate'] / 1e6:.1f} M at {top['n']})")
+        for r in results:
+            if r["order"] != "lattice" and r["n"] >= 900_000:
+                goal = 2500e6 if r["n"] < 2_000_000 else 2400e6
+                print(f"issue 14 goal >= {goal / 1e6:.0f} M particle-substeps/s, {r['order']} input order, P2G {r['p2g']}, "
+                      f"{r['n']} particles: {'MET' if r['rate'] >= goal else 'NOT MET'} ({r['rate'] / 1e6:.1f} M)")
 
 
 if __name__ == "__main__":

@@ -152,3 +152,55 @@ def test_sorted_and_unsorted_runs_agree(device):
     snow = p.material_id == SNOW
     assert np.abs(F0 - F1)[~snow].max() < 2e-5
     assert np.abs(F0 - F1)[snow].max() < 5e-4
+
+
+def scatter(sim: MPMSolver, kernel: str, max_window: int = 0) -> tuple[np.ndarray, ...]:
+    """(grid mass, momentum, fixed weight) after one P2G of `kernel` ("atomic" or "tiled")."""
+    import warp as wp
+
+    from pixie_gs.sim import kernels
+
+    d = sim.device
+    out = [wp.zeros(sim.dims, dtype=t, device=d) for t in (float, wp.vec3, float)]
+    inputs = [sim.x, sim.v, sim.C, sim.stress, sim.volume, sim.mass, sim.fixed_flag, sim.grid_info, 1e-3]
+    if kernel == "atomic":
+        wp.launch(kernels.p2g, dim=sim.n, device=d, inputs=inputs + out)
+    else:
+        block = kernels.P2G_BLOCK if d != "cpu" else 1
+        wp.launch(kernels.p2g_tiled, dim=-(-sim.n // block) * block, block_dim=block, device=d,
+                  inputs=inputs + [sim.n, max_window] + out)
+    return tuple(a.numpy() for a in out)
+
+
+@pytest.mark.parametrize("order", ["sorted", "file"])
+def test_tiled_p2g_matches_the_plain_atomic_kernel(device, order):
+    from pixie_gs.sim import kernels
+
+    scene = scene_for_tests()
+    sim = MPMSolver(mixed_block(scene), scene, device, sort_every=1 if order == "sorted" else 0)
+    rng = np.random.default_rng(2)
+    sim.C.assign(rng.normal(0.0, 1.0, (sim.n, 3, 3)).astype(np.float32))
+    sim.stress.assign(rng.normal(0.0, 100.0, (sim.n, 3, 3)).astype(np.float32))
+    reference = scatter(sim, "atomic")
+    # the shared-memory window, and the per-particle fallback of blocks that do not fit in it
+    for max_window in (kernels.P2G_WINDOW_NODES, 0):
+        tiled = scatter(sim, "tiled", max_window)
+        for a, b in zip(reference, tiled):
+            assert np.abs(a - b).max() <= 1e-5 * np.abs(a).max()  # summation order only
+    # and the independent sums: total mass and momentum are the particles' own
+    mass = sim.mass.numpy().astype(np.float64)
+    assert tiled[0].sum() == pytest.approx(mass.sum(), rel=1e-5)
+    momentum = (mass[:, None] * sim.v.numpy()).sum(0)
+    assert np.allclose(tiled[1].reshape(-1, 3).sum(0), momentum, rtol=1e-4, atol=1e-9)
+
+
+def test_solver_with_tiled_p2g_agrees_with_the_atomic_one(device):
+    scene = scene_for_tests()
+    p = mixed_block(scene)
+    runs = []
+    for kind in ("atomic", "tiled"):
+        sim = MPMSolver(p, scene, device, p2g=kind)
+        for _ in range(2):
+            sim.step_frame(1 / 60)
+        runs.append(sim.positions())
+    assert np.abs(runs[0] - runs[1]).max() < 1e-5

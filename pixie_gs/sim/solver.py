@@ -63,9 +63,13 @@ class MPMSolver:
     `sort_every`: re-sort the particle arrays into cell order every this many frames (0: keep
     the caller's order, never sort). Sorted and unsorted runs agree to float rounding.
     The Warp arrays (x, v, F, ...) are in slot order; use the accessors for the caller's order.
+    `p2g`: "tiled" (shared-memory sums per block of sorted particles, kernels.p2g_tiled),
+    "atomic" (one global atomic per particle and node, kernels.p2g) or "auto" (tiled on a GPU;
+    atomic on the CPU, where Warp runs one lane per block and the tiles cannot pay).
     """
 
-    def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int = 4) -> None:
+    def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int = 4,
+                 p2g: str = "auto") -> None:
         particles.validate()
         self.scene = scene
         self.device = resolve_warp_device(device)
@@ -76,6 +80,9 @@ class MPMSolver:
         self.particle_substeps = 0
         self.stiffness_scale = 1.0
         self.sort_every = int(sort_every)
+        if p2g not in ("auto", "tiled", "atomic"):
+            raise ValueError(f"p2g must be 'auto', 'tiled' or 'atomic', got {p2g!r}")
+        self.p2g_kind = ("atomic" if self.device == "cpu" else "tiled") if p2g == "auto" else p2g
         self.timing: dict[str, float] = {}
         self.kernel_timer = None
         self._impulse_done = [False] * len(scene.impulses)
@@ -350,10 +357,17 @@ class MPMSolver:
         """Pack every kernel's arguments once; substeps then only update dt, time and the box.
         (The scene is read here: changing it after construction has no effect.)"""
         sc, d = self.scene, self.device
-        self._p2g = wp.launch(
-            kernels.p2g, dim=self.n, device=d, record_cmd=True,
-            inputs=[self.x, self.v, self.C, self.stress, self.volume, self.mass, self.fixed_flag, self.grid_info,
-                    0.0, self.grid_mass, self.grid_momentum, self.grid_fixed])
+        particle_inputs = [self.x, self.v, self.C, self.stress, self.volume, self.mass, self.fixed_flag,
+                           self.grid_info, 0.0]
+        grid_outputs = [self.grid_mass, self.grid_momentum, self.grid_fixed]
+        if self.p2g_kind == "tiled":
+            block = kernels.P2G_BLOCK if d != "cpu" else 1
+            self._p2g = wp.launch(
+                kernels.p2g_tiled, dim=-(-self.n // block) * block, block_dim=block, device=d, record_cmd=True,
+                inputs=particle_inputs + [self.n, kernels.P2G_WINDOW_NODES] + grid_outputs)
+        else:
+            self._p2g = wp.launch(kernels.p2g, dim=self.n, device=d, record_cmd=True,
+                                  inputs=particle_inputs + grid_outputs)
         self._grid = wp.launch(
             kernels.grid_update, dim=self.dims, device=d, record_cmd=True,
             inputs=[self.grid_mass, self.grid_momentum, self.grid_fixed, self.grid_velocity, self.grid_info,
