@@ -1,0 +1,122 @@
+"""`prepare_cloud`: floaters → up → ground → objects, written as per-Gaussian `role` / `object_id`.
+
+Nothing is removed or moved: the returned cloud is a copy of the input with two properties added
+(`role` uint8, `object_id` int32; codes in scene.py and docs/prepare.md) and a PreparedScene
+with the decisions."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..splat import SplatCloud
+from .density import floater_mask, robust_spacing
+from .gravity import estimate_up, score_direction, flat_normals
+from .objects import Crop, components, fit_box, parse_crop, pick_objects, robust_box
+from .scene import (ROLE_BACKGROUND, ROLE_FLOATER, ROLE_GROUND, ROLE_NAMES, ROLE_OBJECT, PreparedObject,
+                    PreparedScene)
+from .updir import nearest_axis, parse_up, rotation_to_z
+
+TINY_COMPONENT = 0.002  # share of the Gaussians below which a cluster away from objects is a floater
+
+
+def _box(lo: np.ndarray, hi: np.ndarray) -> list[list[float]]:
+    return [[float(v) for v in lo], [float(v) for v in hi]]
+
+
+def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", crop: "str | Crop | None" = None,
+                  floaters: bool = True, seed: int = 0) -> tuple[SplatCloud, PreparedScene]:
+    """(copy of `cloud` with `role` and `object_id`, PreparedScene) — see the module docstring.
+
+    up: "auto", an axis ("-y"), a vector; crop: "box:…", "sphere:…", "point:…" (file units) or a Crop.
+    """
+    t0 = time.perf_counter()
+    crop_obj = parse_crop(crop) if isinstance(crop, str) or crop is None else crop
+    given = parse_up(up) if not isinstance(up, np.ndarray) else parse_up(up)
+    x = cloud.means.astype(np.float64)
+    alpha = cloud.opacities.astype(np.float64)
+    n = len(x)
+    spacing = robust_spacing(x, seed=seed)
+    role = np.full(n, ROLE_BACKGROUND, np.uint8)
+    if floaters:
+        floater, _ = floater_mask(x, alpha, spacing)
+    else:
+        floater = np.zeros(n, bool)
+    keep = ~floater
+    if crop_obj is not None and crop_obj.kind != "point":
+        keep &= crop_obj.contains(x)
+    # ---- up and the support plane
+    if given is None:
+        est = estimate_up(x[keep], alpha[keep], cloud.rotations[keep], cloud.log_scales[keep], spacing, seed=seed)
+        u, method, confidence = est.up, est.method, est.confidence
+        is_ground, base = est.is_ground, est.base_height
+    else:
+        u, method, confidence = given, "given", 1.0
+        sub = np.nonzero(keep)[0]
+        if len(sub) > 12000:
+            sub = np.random.default_rng(seed).choice(sub, 12000, replace=False)
+        normals, flat = flat_normals(cloud.rotations[sub], cloud.log_scales[sub])
+        lo, hi = np.percentile(x[sub], [1, 99], axis=0)
+        tol = max(1.5 * spacing, 0.006 * float(np.linalg.norm(hi - lo)))
+        s = score_direction(x[sub], np.clip(alpha[sub], 0.05, 1), normals, flat, u, tol, refine=False)
+        from .gravity import GROUND_SHARE
+        is_ground = s.support >= GROUND_SHARE and s.footprint_ratio > 0.5 and s.stable
+        base = s.base
+    R = rotation_to_z(u)
+    xu = x @ R.T
+    # ---- ground
+    lo_all, hi_all = np.percentile(xu[keep], [1, 99], axis=0)
+    tol = max(1.5 * spacing, 0.006 * float(np.linalg.norm(hi_all - lo_all)))
+    ground_height = None
+    ground_extent = None
+    if is_ground and crop_obj is None or (is_ground and crop_obj is not None and crop_obj.kind == "point"):
+        h = xu[:, 2] - base
+        on_ground = keep & (np.abs(h) < 2.0 * tol)
+        below = keep & (h <= -2.0 * tol)
+        role[on_ground] = ROLE_GROUND
+        keep &= ~(on_ground | below)
+        ground_height = float(base)
+        glo, ghi = robust_box(xu[on_ground][:, :2], 1.0)
+        ground_extent = _box(glo, ghi)
+    # ---- objects
+    object_id = np.full(n, -1, np.int32)
+    idx = np.nonzero(keep)[0]
+    if len(idx):
+        size = float(np.max(hi_all - lo_all)) or 1.0
+        cell = max(4.0 * spacing, size / 100.0)
+        labels = components(xu[idx], cell)
+        if crop_obj is not None and crop_obj.kind == "point":
+            near = int(np.argmin(np.linalg.norm(x[idx] - np.asarray(crop_obj.values), axis=1)))
+            obj = np.where(labels == labels[near], 0, -1).astype(np.int32)
+        elif crop_obj is not None:
+            obj = np.zeros(len(idx), np.int32)
+        else:
+            centre = np.median(xu[idx], axis=0)
+            obj = pick_objects(xu[idx], alpha[idx], labels, centre)
+        object_id[idx] = obj
+        role[idx[obj >= 0]] = ROLE_OBJECT
+        # tiny clusters away from every object: floaters
+        counts = np.bincount(labels, minlength=int(labels.max()) + 1)
+        tiny = (counts[labels] < TINY_COMPONENT * n) & (obj < 0)
+        role[idx[tiny]] = ROLE_FLOATER
+    role[floater] = ROLE_FLOATER
+    object_id[role != ROLE_OBJECT] = -1
+    objects = []
+    for k in range(int(object_id.max()) + 1 if (object_id >= 0).any() else 0):
+        m = object_id == k
+        flo, fhi = fit_box(xu[m])
+        objects.append(PreparedObject(k, int(m.sum()), _box(*robust_box(x[m])), _box(*robust_box(xu[m])),
+                                      _box(flo, fhi)))
+    axis, angle = nearest_axis(u)
+    scene = PreparedScene(
+        up=[float(v) for v in u], up_source="auto" if given is None else "given", up_method=method,
+        up_confidence=round(float(confidence), 3), nearest_axis=axis, angle_from_axis_deg=round(angle, 2),
+        ground_height=ground_height, ground_extent_up=ground_extent, objects=objects,
+        counts={name: int((role == code).sum()) for code, name in ROLE_NAMES.items()},
+        crop=None if crop_obj is None else f"{crop_obj.kind}:{','.join(f'{v:g}' for v in crop_obj.values)}",
+        spacing=float(spacing), count=n)
+    out = cloud.copy()
+    out.set("role", role, np.uint8)
+    out.set("object_id", object_id, np.int32)
+    scene.seconds = round(time.perf_counter() - t0, 3)
+    return out, scene
