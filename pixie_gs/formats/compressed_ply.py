@@ -33,6 +33,7 @@ CHUNK_COLOUR_PROPS = ["min_r", "min_g", "min_b", "max_r", "max_g", "max_b"]
 PACKED_PROPS = ["packed_position", "packed_rotation", "packed_scale", "packed_color"]
 OPACITY_LOGIT_LIMIT = 40.0  # logit written for α = 0 or 1 (what the PlayCanvas decompressor uses)
 SH_RANGE = 4.0  # f_rest bytes cover [-4, 4]
+LOG_SCALE_LIMIT = 40.0  # |log σ| kept (infinite scales would break the chunk ranges)
 
 
 def is_compressed(header: PlyHeader) -> bool:
@@ -214,7 +215,7 @@ def encode(cloud: SplatCloud, keep_order: bool = False) -> tuple[bytes, np.ndarr
     n_chunks = -(-n // CHUNK)
     per = np.repeat(np.arange(n_chunks), CHUNK)[:n]
     means = cloud.means[order].astype(np.float64)
-    log_scales = np.clip(cloud.log_scales[order].astype(np.float64), -20.0, 20.0)
+    log_scales = np.clip(cloud.log_scales[order].astype(np.float64), -LOG_SCALE_LIMIT, LOG_SCALE_LIMIT)
     rgb = 0.5 + SH_C0 * cloud.sh_dc[order].astype(np.float64)
     p_lo, p_hi = _chunk_min_max(means, n_chunks)
     s_lo, s_hi = _chunk_min_max(log_scales, n_chunks)
