@@ -56,6 +56,24 @@ class MeasuredTracks:
                               self.match_distance[index], self.source)
 
 
+MAX_SIM_FRAMES = 100_000  # simulation frames a diagnosis may need to cover the measured times
+MIN_FRAME_INTERVAL_S = 1e-5
+
+
+def check_track_sizes(t: np.ndarray, num_points: int, src: str) -> None:
+    """InputError before any work when the tracks have no points, a frame interval too small, or
+    times so long that covering them would take an absurd number of simulation frames."""
+    if num_points == 0:
+        raise InputError("'x' holds zero tracked points", src)
+    dt = float(np.median(np.diff(t)))
+    if dt < MIN_FRAME_INTERVAL_S:
+        raise InputError(f"median frame interval {dt:g} s is below {MIN_FRAME_INTERVAL_S:g} s", src)
+    frames = t[-1] / dt + 1
+    if frames > MAX_SIM_FRAMES:
+        raise InputError(f"'t' runs to {t[-1]:g} s at {dt:g} s per frame: {frames:.3g} simulation frames "
+                         f"would be needed (at most {MAX_SIM_FRAMES})", src)
+
+
 def validate_arrays(t: np.ndarray, x: np.ndarray, visible: np.ndarray | None, ids: np.ndarray | None,
                     num_gaussians: int, source: str | Path | None = None) -> tuple:
     """Check shapes/values of measured arrays; return (t float64, x float64, visible bool, ids|None).
@@ -85,6 +103,7 @@ def validate_arrays(t: np.ndarray, x: np.ndarray, visible: np.ndarray | None, id
                          f"t[{bad + 1}]={t[bad + 1]:g} s)", src)
     if t[0] < 0:
         raise InputError(f"'t' starts at {t[0]:g} s; times are seconds since the simulation starts (>= 0)", src)
+    check_track_sizes(t, x.shape[1], src)
     T, M = x.shape[:2]
     if visible is None:
         vis = np.ones((T, M), bool)
@@ -106,7 +125,7 @@ def validate_arrays(t: np.ndarray, x: np.ndarray, visible: np.ndarray | None, id
             raise InputError(f"'ids' must have shape (M,)=({M},), got {ids.shape}", src)
         if not np.issubdtype(ids.dtype, np.integer):
             raise InputError(f"'ids' must be integers, got {ids.dtype}", src)
-        if ids.min() < 0 or ids.max() >= num_gaussians:
+        if ids.size and (ids.min() < 0 or ids.max() >= num_gaussians):
             raise InputError(f"'ids' out of range [0, {num_gaussians}) for the splat "
                              f"(min {ids.min()}, max {ids.max()})", src)
         if len(np.unique(ids)) != len(ids):
