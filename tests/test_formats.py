@@ -428,3 +428,16 @@ def test_gsplat_compressed_ply_with_empty_sh_element_reads(tmp_path: Path) -> No
     cloud = read_splat(tmp_path / "gs.ply")
     assert cloud.sh_degree == 0
     np.testing.assert_array_equal(cloud.means, read_splat(GUITAR).means)
+
+
+def test_info_reports_the_format_found_by_content(tmp_path: Path) -> None:
+    import json
+
+    shutil.copy(GUITAR, tmp_path / "capture.ply")  # a compressed PLY under a plain .ply name
+    proc = subprocess.run([sys.executable, "-m", "pixie_gs", "info", str(tmp_path / "capture.ply"), "--json"],
+                          capture_output=True, text=True, check=True)
+    info = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert info["format"] == "compressed_ply" and info["count"] == 768
+    proc = subprocess.run([sys.executable, "-m", "pixie_gs", "info", str(tmp_path / "capture.ply")],
+                          capture_output=True, text=True, check=True)
+    assert "SuperSplat compressed PLY" in proc.stdout

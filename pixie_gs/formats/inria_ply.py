@@ -34,8 +34,9 @@ def check_strict(header: PlyHeader, path: Path) -> None:
     if lists:
         raise InputError(f"vertex element has list property '{lists[0]}'; a 3DGS vertex holds scalars only",
                          path)
+    variable = any(el.has_list and el.count > 0 for el in header.elements)  # rows of unknown size
     if header.format != "ascii":
-        if not any(el.has_list for el in header.elements):
+        if not variable:
             check_binary_size(header, path.stat().st_size, path)
         return
     with open(path, "rb") as fh:
@@ -45,7 +46,7 @@ def check_strict(header: PlyHeader, path: Path) -> None:
     if lines < expected:
         raise InputError(f"truncated PLY data: header declares {expected} rows, the file has {lines} lines",
                          path)
-    if lines > expected and not any(el.has_list for el in header.elements):
+    if lines > expected and not variable:
         raise InputError(f"PLY data longer than its header says: header declares {expected} rows but the "
                          f"file has {lines} lines (wrong vertex count?)", path)
 
