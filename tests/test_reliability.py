@@ -446,7 +446,8 @@ def test_tracks_are_memory_mapped_not_held_in_memory(tmp_path):
 # ------------------------------------------------------------------------- measured tracks
 @pytest.mark.parametrize("t,x,word", [
     (np.arange(5) / 10.0, np.zeros((5, 0, 3)), "zero tracked points"),
-    (np.array([0.0, 1e300, 2e300]), np.zeros((3, 20, 3)), "simulation frames"),
+    (np.array([0.0, 1e300, 2e300]), np.zeros((3, 20, 3)), "frame interval"),
+    (np.concatenate([np.arange(4) / 10.0, [1e9]]), np.zeros((5, 20, 3)), "simulation frames"),
     (np.array([0.0, 1e-9, 2e-9]), np.zeros((3, 20, 3)), "frame interval"),
     (np.arange(5) / 10.0, np.zeros((5, 0, 3)), "zero tracked points"),
 ])

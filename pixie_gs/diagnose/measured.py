@@ -58,6 +58,7 @@ class MeasuredTracks:
 
 MAX_SIM_FRAMES = 100_000  # simulation frames a diagnosis may need to cover the measured times
 MIN_FRAME_INTERVAL_S = 1e-5
+MAX_FRAME_INTERVAL_S = 1e3
 
 
 def check_track_sizes(t: np.ndarray, num_points: int, src: str) -> None:
@@ -66,8 +67,9 @@ def check_track_sizes(t: np.ndarray, num_points: int, src: str) -> None:
     if num_points == 0:
         raise InputError("'x' holds zero tracked points", src)
     dt = float(np.median(np.diff(t)))
-    if dt < MIN_FRAME_INTERVAL_S:
-        raise InputError(f"median frame interval {dt:g} s is below {MIN_FRAME_INTERVAL_S:g} s", src)
+    if not MIN_FRAME_INTERVAL_S <= dt <= MAX_FRAME_INTERVAL_S:
+        raise InputError(f"median frame interval {dt:g} s is outside {MIN_FRAME_INTERVAL_S:g}..{MAX_FRAME_INTERVAL_S:g} s",
+                         src)
     frames = t[-1] / dt + 1
     if frames > MAX_SIM_FRAMES:
         raise InputError(f"'t' runs to {t[-1]:g} s at {dt:g} s per frame: {frames:.3g} simulation frames "
