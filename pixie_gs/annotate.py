@@ -2,16 +2,26 @@
 
 Library entry used by `pixie annotate`, the demo and diagnose: field → U-Net → nearest-voxel
 transfer, result written as `material_id`, `E` (Pa), `nu`, `density` (kg/m³) on a copy.
+
+With a PreparedScene (pixie_gs/prepare), each object is predicted on its own (turned so its up
+vector is +z, normalised by its robust box), background and ground become `stationary`
+(held in place, stiff) and floaters are left out of every grid (written as stationary too).
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-from .errors import require_finite_result
+import numpy as np
+
 from .progress import stage
 from .splat import SplatCloud
 
 _CACHE: dict[tuple[str, str], object] = {}
+STATIONARY = 6
+# Values written for background, ground and floater Gaussians: rigid and held in place.
+STATIONARY_E_PA = 1.0e9
+STATIONARY_NU = 0.3
+STATIONARY_DENSITY = 1500.0
 
 
 def get_model(checkpoint: str | Path | None = None, device: str = "cpu"):
@@ -25,21 +35,53 @@ def get_model(checkpoint: str | Path | None = None, device: str = "cpu"):
 
 
 def annotate_cloud(cloud: SplatCloud, checkpoint: str | Path | None = None, device: str = "auto",
-                   up: str = "z", return_grid: bool = False):
-    """A copy of `cloud` with predicted materials (and the MaterialGrid when `return_grid`)."""
+                   up="z", return_grid: bool = False, prepared=None):
+    """A copy of `cloud` with predicted materials (and the MaterialGrid when `return_grid`).
+
+    up: axis name ("z", "-y") or unit vector; ignored when `prepared` (a PreparedScene whose
+    `role`/`object_id` the cloud carries) is given: then its up and object boxes are used."""
     from .devices import resolve_torch_device
     from .field import up_rotation
     from .model.predict import predict_materials
     from .transfer import nearest_voxel_values, write_materials
 
-    up_rotation(up)  # validates the axis name before any heavy work
+    if prepared is None and isinstance(up, str):
+        up_rotation(up)  # validates the axis name before any heavy work
     dev = resolve_torch_device(device)
     loaded = get_model(checkpoint, dev)
-    stage(f"predicting materials for {len(cloud)} Gaussians on {dev}")
-    mgrid = predict_materials(loaded, cloud, dev, up)
-    mat, phys = nearest_voxel_values(mgrid.grid.extra["means_unit"], mgrid.classes, mgrid.physical,
-                                     mgrid.occupancy)
+    if prepared is None:
+        stage(f"predicting materials for {len(cloud)} Gaussians on {dev}")
+        mgrid = predict_materials(loaded, cloud, dev, up)
+        mat, phys = nearest_voxel_values(mgrid.grid.extra["means_unit"], mgrid.classes, mgrid.physical,
+                                         mgrid.occupancy)
+        out = write_materials(cloud, mat, phys)
+        return (out, mgrid) if return_grid else out
+    return _annotate_prepared(cloud, loaded, dev, prepared, return_grid)
+
+
+def _annotate_prepared(cloud: SplatCloud, loaded, dev: str, prepared, return_grid: bool):
+    """Per-object prediction; everything that is not an object becomes stationary."""
+    from .materials import normalize_physical
+    from .model.predict import predict_materials
+    from .transfer import nearest_voxel_values, write_materials
+
+    n = len(cloud)
+    object_id = cloud.get("object_id").astype(np.int64)
+    mat = np.full(n, STATIONARY, np.int32)
+    phys = np.tile(normalize_physical(np.array([STATIONARY_E_PA]), np.array([STATIONARY_NU]),
+                                      np.array([STATIONARY_DENSITY])).astype(np.float32), (n, 1))
+    first_grid = None
+    up = prepared.up_vector
+    for obj in prepared.objects:
+        sel = np.nonzero(object_id == obj.object_id)[0]
+        if len(sel) == 0:
+            continue
+        stage(f"predicting materials for object {obj.object_id} ({len(sel)} of {n} Gaussians) on {dev}")
+        part = cloud.subset(sel)
+        box = (np.asarray(obj.fit_box_up[0]), np.asarray(obj.fit_box_up[1]))
+        mgrid = predict_materials(loaded, part, dev, up, box=box)
+        m, p = nearest_voxel_values(mgrid.grid.extra["means_unit"], mgrid.classes, mgrid.physical, mgrid.occupancy)
+        mat[sel], phys[sel] = m, p
+        first_grid = first_grid or mgrid
     out = write_materials(cloud, mat, phys)
-    require_finite_result({name: out.get(name) for name in ("E", "nu", "density")}, "predicted materials",
-                          cloud.source)
-    return (out, mgrid) if return_grid else out
+    return (out, first_grid) if return_grid else out

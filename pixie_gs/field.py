@@ -265,18 +265,23 @@ def per_gaussian_channels(cloud: SplatCloud, extra_names: list[str]) -> tuple[np
     return sh.astype(np.float32), extras
 
 
-def prepare_gaussians(g: GaussianTensors, margin: float = 0.05):
+def prepare_gaussians(g: GaussianTensors, margin: float = 0.05, box: tuple | None = None):
     """Normalise into the unit cube and build per-Gaussian features (torch, on g's device).
 
     The transform is the one of `SplatCloud.unit_cube_transform`: isotropic, the longest side of
     the centres' bounding box maps to 1 − 2·margin, centred at 0.5. Returns (means_unit (M,3),
     cov_unit (M,3,3), alphas (M,), features (M, len(BASE_FEATURES)+E), scale, offset (3,)).
     Sizes come from the covariance eigenvalues so they stay right after any rotation/stretch.
+    `box` (lo (3,), hi (3,)) replaces the centres' min/max, e.g. a prepared object's robust box.
     """
     import torch
 
-    lo = g.means.amin(dim=0)
-    hi = g.means.amax(dim=0)
+    if box is None:
+        lo = g.means.amin(dim=0)
+        hi = g.means.amax(dim=0)
+    else:
+        lo = torch.as_tensor(np.asarray(box[0], np.float32), device=g.means.device)
+        hi = torch.as_tensor(np.asarray(box[1], np.float32), device=g.means.device)
     extent = float((hi - lo).max())
     scale = (1.0 - 2.0 * margin) / extent if extent > 0 else 1.0
     offset = (lo + hi) / 2.0
@@ -293,18 +298,26 @@ def prepare_gaussians(g: GaussianTensors, margin: float = 0.05):
 
 def feature_grid(cloud: SplatCloud, resolution: int = 64, extra_names: list[str] | None = None,
                  device: str = "cpu", filter_voxels: float = 0.5, margin: float = 0.05,
-                 up: str = "z") -> FeatureGrid:
+                 up: "str | np.ndarray" = "z", box: tuple | None = None) -> FeatureGrid:
     """The FeatureGrid of `cloud` (turned z-up, normalised into the unit cube), torch on `device`.
 
     `extra_names` picks the extra float channels (default: every usable one in the file; a model
     passes the list it was trained with, missing ones become zeros). The grid's `transform` maps
-    the z-up-rotated world coordinates into the unit cube (see `grid_coordinates`).
+    the z-up-rotated world coordinates into the unit cube (see `grid_coordinates`). `up` is an
+    axis name or a unit vector (turned to +z by the smallest rotation); `box` (lo, hi) in the
+    rotated frame replaces the centres' min/max for the normalisation.
     """
     if extra_names is None:
         extra_names = extra_feature_names(cloud)
-    rot = None if up == "z" else up_rotation(up)
+    if isinstance(up, str):
+        rot = None if up == "z" else up_rotation(up)
+    else:
+        from .prepare.updir import rotation_to_z
+
+        rot = rotation_to_z(np.asarray(up, np.float64))
+        rot = None if np.allclose(rot, np.eye(3)) else rot
     g = cloud_tensors(cloud, extra_names, device, rot)
-    means, cov, alpha, feats, scale, offset = prepare_gaussians(g, margin)
+    means, cov, alpha, feats, scale, offset = prepare_gaussians(g, margin, box)
     dens, sums = splat_field(means, cov, alpha, feats, resolution, filter_voxels=filter_voxels)
     values, occ = grid_channels(dens, sums, resolution)
     tf = UnitCubeTransform(scale=float(scale), offset=offset.double().cpu().numpy())

@@ -4,8 +4,7 @@ from __future__ import annotations
 import argparse
 
 from ..devices import DEVICE_CHOICES, DEVICE_HELP
-
-UP_CHOICES = ("z", "y", "-y", "x", "-x", "-z")
+from .cmd_prepare import add_prepare_options, prepare_from_args, write_sidecar
 
 
 def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.ArgumentParser:
@@ -13,13 +12,14 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
         "annotate", parents=parents, help="predict materials (class, E, nu, density) for every Gaussian",
         description="Feature grid → 3D U-Net → nearest-voxel transfer. Writes material_id, E (Pa), nu and "
         "density (kg/m3) as extra vertex properties; every input property is kept.",
-        epilog="example: pixie annotate scene.ply scene_materials.ply --up y --rrd materials.rrd",
+        epilog="example: pixie annotate scene.ply scene_materials.ply --rrd materials.rrd   "
+        "(the capture is prepared first: up, ground, floaters, objects; see `pixie prepare --help`)",
     )
     p.add_argument("input", metavar="IN.ply", help="3D Gaussian splat")
     p.add_argument("output", metavar="OUT.ply", help="annotated splat to write")
     p.add_argument("--checkpoint", default=None, metavar="CKPT", help="model checkpoint (default: the shipped one)")
     p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help=DEVICE_HELP)
-    p.add_argument("--up", choices=UP_CHOICES, default="z", help="axis of the splat that points up")
+    add_prepare_options(p)
     p.add_argument("--rrd", default=None, metavar="FILE", help="rerun recording: splat by RGB, material, log E")
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")
     p.add_argument("--drop-invalid", action="store_true",
@@ -37,9 +37,15 @@ def run(args: argparse.Namespace) -> int:
     from ..progress import stage
     from ..splat import read_splat_valid, write_splat
 
+    from ..prepare import parse_crop, parse_up
+
     check_distinct_output(args.input, args.output, args.force)
+    given_up = parse_up(args.up)
+    parse_crop(args.crop)
     cloud = read_splat_valid(args.input, args.drop_invalid)
-    out = annotate_cloud(cloud, args.checkpoint, args.device, args.up)
+    cloud, prepared = prepare_from_args(cloud, args)
+    out = annotate_cloud(cloud, args.checkpoint, args.device, given_up if given_up is not None else "z",
+                         prepared=prepared)
     if args.rrd:
         from ..viz import log_material_views, recording, send_layout
 
@@ -47,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
             log_material_views(rec, out)
             send_layout(rec)
     write_splat(out, args.output)
+    write_sidecar(prepared, args.output)
     mid, E, nu, rho = out.get_materials()
     stage(f"wrote {args.output}")
     for m in np.unique(mid):

@@ -5,6 +5,7 @@ import argparse
 from pathlib import Path
 
 from ..devices import DEVICE_CHOICES, DEVICE_HELP
+from .cmd_prepare import add_prepare_options
 from ..errors import InputError
 
 PRESET_CHOICES = ("drop", "wind", "push")
@@ -31,7 +32,9 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help=DEVICE_HELP)
     p.add_argument("--rrd", metavar="FILE", help="save a rerun recording of the run")
     p.add_argument("--spawn", action="store_true", help="stream the run live to a rerun viewer")
-    p.add_argument("--fill", action="store_true", help="fill the enclosed interior of solid objects with particles")
+    p.add_argument("--fill", action="store_true", help="fill the enclosed interior of solid objects with particles "
+                   "(default: automatic for a prepared object that is a closed surface shell)")
+    add_prepare_options(p)
     p.add_argument("--force", action="store_true", help="overwrite earlier frames in DIR")
     p.add_argument("--drop-invalid", action="store_true",
                    help="remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
@@ -64,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
     cloud = read_splat_valid(args.input, args.drop_invalid)
     material_arrays(cloud)  # one-line error before anything is created
     scene = load_scene(args)
+    cloud, prepared = _prepare(cloud, args, scene)
     if args.rrd:
         check_distinct_output(args.input, args.rrd, force=False)
         if Path(args.rrd).resolve().parent == Path(args.out).resolve():
@@ -77,7 +81,12 @@ def run(args: argparse.Namespace) -> int:
     except BaseException:
         writer.abort()
         raise
-    tf = placement_transform(cloud.means, scene)
+    if prepared is not None:
+        from ..sim.prepared import place_prepared
+
+        tf = place_prepared(cloud, prepared, scene).transform
+    else:
+        tf = placement_transform(cloud.means, scene)
     entities = viz.MATERIAL_VIEW_ENTITIES
 
     def on_frame(state: FrameState) -> None:
@@ -91,9 +100,16 @@ def run(args: argparse.Namespace) -> int:
 
     stage(f"simulating {len(cloud)} Gaussians of {args.input}: {args.frames} frames at {args.fps:g} fps")
     try:
-        traj = simulate(cloud, scene, args.frames, args.fps, device=args.device, on_frame=on_frame,
-                        fill=args.fill, positions_out=writer.positions)
-        preview = writer.write_preview(traj.t, traj.x, scene.up)
+        if prepared is not None:
+            from ..sim.prepared import simulate_prepared
+
+            traj = simulate_prepared(cloud, prepared, scene, args.frames, args.fps, device=args.device,
+                                     on_frame=on_frame, fill=True if args.fill else None,
+                                     positions_out=writer.positions)
+        else:
+            traj = simulate(cloud, scene, args.frames, args.fps, device=args.device, on_frame=on_frame,
+                            fill=args.fill, positions_out=writer.positions)
+        preview = writer.write_preview(traj.t, traj.x, scene.up if prepared is None else prepared.nearest_axis)
         viz.send_layout(rec, fps=args.fps, shared=["world"])
         saved = viz.close_recording(rec)
         tracks = writer.finish(traj.t, traj.x)  # last: the old output is replaced only by a complete run
@@ -105,6 +121,21 @@ def run(args: argparse.Namespace) -> int:
           + (f" (+{traj.filled} interior particles simulated)" if traj.filled else "")
           + (f"; rerun recording {saved}" if saved else ""))
     return 0
+
+
+def _prepare(cloud, args: argparse.Namespace, scene):
+    """(cloud with roles, PreparedScene) unless --no-prepare; --up given on the command line wins
+    over the scene's `up` (a scene file's `up` is used only with --no-prepare)."""
+    from ..prepare import parse_crop, parse_up
+    from .cmd_prepare import prepare_from_args
+
+    parse_up(args.up)
+    parse_crop(args.crop)
+    if args.no_prepare:
+        if parse_up(args.up) is not None and args.up.lstrip("+") in ("x", "y", "z", "-x", "-y", "-z"):
+            scene.up = args.up.lstrip("+")
+        return cloud, None
+    return prepare_from_args(cloud, args)
 
 
 def _log_world(rec, scene) -> None:

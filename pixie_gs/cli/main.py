@@ -15,7 +15,7 @@ import sys
 from ..errors import PixieError
 from ..progress import set_quiet
 
-COMMANDS = ["demo", "info", "convert", "generate", "train", "evaluate", "annotate", "simulate", "render", "diagnose"]
+COMMANDS = ["demo", "info", "convert", "generate", "train", "evaluate", "prepare", "annotate", "simulate", "render", "diagnose"]
 
 
 def common_options() -> argparse.ArgumentParser:
@@ -49,8 +49,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from ..prepare.updir import fix_negative_up
+
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(fix_negative_up(list(sys.argv[1:] if argv is None else argv)))
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -55,13 +55,15 @@ def run_model(loaded: LoadedModel, values, channel_names: list[str], occupied):
     return classes_from_logits(logits.float(), occupied), physical.float().clamp(-1.5, 1.5)
 
 
-def predict_materials(loaded: LoadedModel, cloud: SplatCloud, device: str = "cpu", up: str = "z") -> MaterialGrid:
-    """Predict the material grid of `cloud` (its `up` axis is turned to +z first, as in training)."""
+def predict_materials(loaded: LoadedModel, cloud: SplatCloud, device: str = "cpu", up="z",
+                      box: tuple | None = None) -> MaterialGrid:
+    """Predict the material grid of `cloud` (its `up` axis or vector is turned to +z first, as in
+    training; `box` (lo, hi) in that frame sets the unit-cube normalisation instead of min/max)."""
     import torch
 
     spec = loaded.features
     grid = feature_grid(cloud, spec.resolution, list(spec.extra_names), device=device,
-                        filter_voxels=spec.filter_voxels, margin=spec.margin, up=up)
+                        filter_voxels=spec.filter_voxels, margin=spec.margin, up=up, box=box)
     values = torch.as_tensor(grid.values, device=device)[None]
     occupied = torch.as_tensor(grid.occupancy, device=device)[None]
     classes, physical = run_model(loaded, values, grid.channels, occupied)

@@ -17,6 +17,7 @@ from .scene import (ROLE_BACKGROUND, ROLE_FLOATER, ROLE_GROUND, ROLE_NAMES, ROLE
                     PreparedScene)
 from .updir import nearest_axis, parse_up, rotation_to_z
 
+SNAP_DEG = 2.5  # an estimate this close to a file axis is taken as that axis
 TINY_COMPONENT = 0.002  # share of the Gaussians below which a cluster away from objects is a floater
 
 
@@ -49,6 +50,9 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
     if given is None:
         est = estimate_up(x[keep], alpha[keep], cloud.rotations[keep], cloud.log_scales[keep], spacing, seed=seed)
         u, method, confidence = est.up, est.method, est.confidence
+        axis, angle = nearest_axis(u)
+        if angle < SNAP_DEG:  # a file written axis-aligned by its tool: take the axis exactly
+            u = parse_up(axis)
         is_ground, base = est.is_ground, est.base_height
     else:
         u, method, confidence = given, "given", 1.0
