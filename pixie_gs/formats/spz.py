@@ -223,8 +223,8 @@ def encode(cloud: SplatCloud, version: int = 3) -> bytes:
         q *= np.where(q[:, 3] < 0, -1.0, 1.0)[:, None]
         rotations = _u8(q[:, :3] * 127.5 + 127.5)
     dim = SH_DIM[deg]
-    sh = cloud.sh_rest.astype(np.float64).reshape(n, 3, dim).transpose(0, 2, 1) * SH_FLIP[:dim, None]
-    sh_bytes = _u8(sh * 128.0 + 128.0)
+    sh = cloud.sh_rest.reshape(n, 3, dim).transpose(0, 2, 1) * SH_FLIP[:dim, None]  # float32: 45 per Gaussian
+    sh_bytes = _u8(sh * np.float32(128.0) + np.float32(128.0))
     header = struct.pack("<IIIBBBB", MAGIC, version, n, deg, FRACTIONAL_BITS, 0, 0)
     body = b"".join(np.ascontiguousarray(x).tobytes() for x in (positions, alphas, colors, scales, rotations,
                                                                  sh_bytes))
