@@ -116,7 +116,10 @@ def real_captures(files: list[Path]) -> None:
                 f"extent {[round(v, 2) for v in lo.tolist()]} .. {[round(v, 2) for v in hi.tolist()]} m")
         if key in expectations:
             box = expectations[key]["object_box"]
-            line += f"; object box {box} covered {100 * box_coverage(lo, hi, box):.0f} %"
+            full = box_coverage(cloud.means.min(axis=0).astype(np.float64), cloud.means.max(axis=0).astype(np.float64),
+                                box)
+            line += (f"; object box {box}: {100 * box_coverage(lo, hi, box):.0f} % inside the 1-99 % extent, "
+                     f"{100 * full:.0f} % inside min-max")
         print(line)
         with tempfile.TemporaryDirectory() as tmp:
             for target in FORMATS:
