@@ -348,6 +348,9 @@ def nearest_surface_sample(tree, inner: np.ndarray, spacing: float) -> np.ndarra
 
 
 # ---------------------------------------------------------------------------------------- splat
+CONVERT_BYTES_PER_GAUSSIAN = 400  # peak working memory per Gaussian (samples, attributes, table)
+
+
 def mesh_to_splat(mesh, n_surface: int, rng: np.random.Generator, *, fill: bool = False,
                   n_fill: int | None = None, rgb: np.ndarray | None = None, color_noise: float = 0.0,
                   normal_scale_ratio: float = 0.1, opacity: float = 0.9) -> SplatCloud:
@@ -364,6 +367,10 @@ def mesh_to_splat(mesh, n_surface: int, rng: np.random.Generator, *, fill: bool 
         raise InputError(f"surface Gaussian count must be ≥ 1 (got {n_surface})", source)
     if not 0.0 < opacity < 1.0:
         raise InputError(f"opacity must lie in (0, 1) (got {opacity})", source)
+    from .limits import require_memory
+
+    total = n_surface + ((n_fill if n_fill is not None else n_surface) if fill else 0)
+    require_memory(total * CONVERT_BYTES_PER_GAUSSIAN, f"converting to {total} Gaussians", source)
     areas = _face_areas(mesh)
     total_area = float(areas.sum())
     if not total_area > 0:

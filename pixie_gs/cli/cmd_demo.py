@@ -34,6 +34,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.frames < 2:
         raise InputError(f"--frames must be ≥ 2, got {args.frames}")
+    if args.checkpoint:  # a bad checkpoint is refused before DIR is created (the model is cached for the run)
+        from ..annotate import get_model
+        from ..devices import resolve_torch_device
+
+        get_model(args.checkpoint, resolve_torch_device(args.device))
     result = run_demo(args.out, DemoSettings(frames=args.frames, seed=args.seed, device=args.device,
                                              checkpoint=args.checkpoint))
     total = sum(result.seconds.values())

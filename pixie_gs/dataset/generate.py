@@ -7,6 +7,7 @@ Object i's seed depends only on (seed, split, i): the bytes do not depend on the
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import multiprocessing
 import os
@@ -115,6 +116,7 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError("exists and is not a directory", out_dir)
+    created = [d for d in (out_dir, *out_dir.parents) if not d.exists()]  # folders this run makes
     out_dir.mkdir(parents=True, exist_ok=True)
     final = out_dir / split
     if final.exists() and not force:
@@ -141,6 +143,9 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
             partial.rename(final)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
+        for d in created:  # innermost first: leave no empty folder behind
+            with contextlib.suppress(OSError):
+                d.rmdir()
         raise
     return final
 

@@ -82,13 +82,15 @@ def load_checkpoint(path: str | Path | None = None, device: str = "cpu") -> Load
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for foreign or damaged files
-        raise InputError(f"not a readable torch checkpoint ({str(exc).splitlines()[0][:120]})", path) from None
+        text = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"not a readable torch checkpoint ({text})", path) from None
     config, features = validate_payload(payload, path)
     model = MaterialUNet(config)
     try:
         model.load_state_dict(payload["state_dict"])
     except RuntimeError as exc:
-        raise InputError(f"weights do not match the stored config ({str(exc).splitlines()[0][:120]})", path) from None
+        text = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"weights do not match the stored config ({text})", path) from None
     model.to(device).eval()
     if device == "cpu":  # channels-last 3D convolutions are ~15 % faster with oneDNN on CPU
         model.to(memory_format=torch.channels_last_3d)
