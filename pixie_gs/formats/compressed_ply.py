@@ -237,8 +237,9 @@ def encode(cloud: SplatCloud, keep_order: bool = False) -> tuple[bytes, np.ndarr
     body = [chunk_table.tobytes(), vertex.tobytes()]
     if k:
         lines += [f"element sh {n}"] + [f"property uchar f_rest_{i}" for i in range(k)]
-        sh = cloud.sh_rest[order].astype(np.float64)
-        body.append(_pack_unorm((sh + SH_RANGE) / (2 * SH_RANGE), 8).astype(np.uint8).tobytes())
+        sh = cloud.sh_rest[order]  # float32 (45 values per Gaussian): floor(t·255 + 0.5), t = (v + 4)/8
+        t = (sh + np.float32(SH_RANGE)) * np.float32(255.0 / (2 * SH_RANGE)) + np.float32(0.5)
+        body.append(np.clip(np.floor(t), 0, 255).astype(np.uint8).tobytes())
     lines.append("end_header\n")
     return "\n".join(lines).encode("ascii") + b"".join(body), order
 
