@@ -51,10 +51,33 @@ def check_strict(header: PlyHeader, path: Path) -> None:
                          f"file has {lines} lines (wrong vertex count?)", path)
 
 
+def _vertex_table(header: PlyHeader, path: Path) -> np.ndarray | None:
+    """The vertex rows read straight into memory (one sequential read), for binary files whose
+    elements before `vertex` have fixed-size rows; None otherwise (plyfile reads those)."""
+    if header.format == "ascii":
+        return None
+    offset = header.data_offset
+    for el in header.elements:
+        if el.name == "vertex":
+            return np.fromfile(path, dtype=el.dtype(header.byte_order), count=el.count, offset=offset)
+        if el.has_list and el.count > 0:
+            return None
+        offset += el.count * el.dtype(header.byte_order).itemsize
+    return None
+
+
 def read(path: str | Path) -> SplatCloud:
     """Read an INRIA 3DGS `.ply` (binary either endian, or ascii) into a validated SplatCloud."""
     path = Path(path)
-    check_strict(read_header(path), path)
+    header = read_header(path)
+    check_strict(header, path)
+    data = _vertex_table(header, path)
+    if data is None:
+        data = _read_with_plyfile(path)
+    return _to_cloud(data, path)
+
+
+def _read_with_plyfile(path: Path) -> np.ndarray:
     try:
         ply = PlyData.read(str(path))
     except Exception as exc:  # plyfile raises several types for malformed or short files
@@ -62,7 +85,11 @@ def read(path: str | Path) -> SplatCloud:
         if "early end" in text.lower() or "truncat" in text.lower() or "expected" in text.lower():
             raise InputError(f"truncated or malformed PLY data ({text})", path) from None
         raise InputError(f"cannot parse PLY ({text})", path) from None
-    data = ply["vertex"].data
+    return ply["vertex"].data
+
+
+def _to_cloud(data: np.ndarray, path: Path) -> SplatCloud:
+    """SplatCloud from a structured vertex table (any property order, scalar types and byte order)."""
     names = list(data.dtype.names or ())
     missing = [p for group in CORE_GROUPS.values() for p in group if p not in names]
     if missing:
@@ -75,7 +102,16 @@ def read(path: str | Path) -> SplatCloud:
             path,
         )
 
+    kinds = {data.dtype[p] for p in names}
+    kind = next(iter(kinds))
+    matrix = None
+    if len(kinds) == 1 and kind.kind == "f" and data.dtype.itemsize == len(names) * kind.itemsize:
+        matrix = data.view(kind).reshape(len(data), len(names))  # all one float type: a 2-D view
+    index = {p: i for i, p in enumerate(names)}
+
     def columns(props: tuple[str, ...] | list[str]) -> np.ndarray:
+        if matrix is not None:
+            return np.ascontiguousarray(matrix[:, [index[p] for p in props]], dtype=np.float32)
         out = np.empty((len(data), len(props)), dtype=np.float32)
         for j, p in enumerate(props):
             out[:, j] = data[p]
