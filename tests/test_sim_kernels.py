@@ -149,13 +149,15 @@ def test_sorted_and_unsorted_runs_agree(device):
     assert np.abs(v0 - v1).max() < 1e-4  # m/s
     # F ≈ I + O(1e-3) after ~400 substeps of float32 (ulp 6e-8 near 1): elastic and metal agree to
     # rounding; snow's return mapping and hardening amplify it (still ≪ its 2.5e-2 clamp)
+    # (on a GPU the atomic sums' order changes from run to run too: a looser bound)
     snow = p.material_id == SNOW
-    assert np.abs(F0 - F1)[~snow].max() < 2e-5
+    assert np.abs(F0 - F1)[~snow].max() < (2e-5 if device == "cpu" else 1e-4)
     assert np.abs(F0 - F1)[snow].max() < 5e-4
 
 
-def scatter(sim: MPMSolver, kernel: str, max_window: int = 0) -> tuple[np.ndarray, ...]:
-    """(grid mass, momentum, fixed weight) after one P2G of `kernel` ("atomic" or "tiled")."""
+def scatter(sim: MPMSolver, kernel: str, chunk: int = 1) -> tuple[np.ndarray, ...]:
+    """(grid mass, momentum, fixed weight) after one P2G of `kernel` ("atomic" or "chunked" with
+    `chunk` particles per thread)."""
     import warp as wp
 
     from pixie_gs.sim import kernels
@@ -166,39 +168,35 @@ def scatter(sim: MPMSolver, kernel: str, max_window: int = 0) -> tuple[np.ndarra
     if kernel == "atomic":
         wp.launch(kernels.p2g, dim=sim.n, device=d, inputs=inputs + out)
     else:
-        block = kernels.P2G_BLOCK if d != "cpu" else 1
-        wp.launch(kernels.p2g_tiled, dim=-(-sim.n // block) * block, block_dim=block, device=d,
-                  inputs=inputs + [sim.n, max_window] + out)
+        wp.launch(kernels.p2g_chunked, dim=-(-sim.n // chunk), device=d, inputs=inputs + [sim.n, chunk] + out)
     return tuple(a.numpy() for a in out)
 
 
 @pytest.mark.parametrize("order", ["sorted", "file"])
-def test_tiled_p2g_matches_the_plain_atomic_kernel(device, order):
-    from pixie_gs.sim import kernels
-
+def test_chunked_p2g_matches_the_plain_atomic_kernel(device, order):
     scene = scene_for_tests()
     sim = MPMSolver(mixed_block(scene), scene, device, sort_every=1 if order == "sorted" else 0)
     rng = np.random.default_rng(2)
     sim.C.assign(rng.normal(0.0, 1.0, (sim.n, 3, 3)).astype(np.float32))
     sim.stress.assign(rng.normal(0.0, 100.0, (sim.n, 3, 3)).astype(np.float32))
     reference = scatter(sim, "atomic")
-    # the shared-memory window, and the per-particle fallback of blocks that do not fit in it
-    for max_window in (kernels.P2G_WINDOW_NODES, 0):
-        tiled = scatter(sim, "tiled", max_window)
-        for a, b in zip(reference, tiled):
+    # chunks that end inside a cell run, at its end, and chunks that hold many runs
+    for chunk in (1, 4, 8, 13, 64):
+        fast = scatter(sim, "chunked", chunk)
+        for a, b in zip(reference, fast):
             assert np.abs(a - b).max() <= 1e-5 * np.abs(a).max()  # summation order only
     # and the independent sums: total mass and momentum are the particles' own
     mass = sim.mass.numpy().astype(np.float64)
-    assert tiled[0].sum() == pytest.approx(mass.sum(), rel=1e-5)
-    momentum = (mass[:, None] * sim.v.numpy()).sum(0)
-    assert np.allclose(tiled[1].reshape(-1, 3).sum(0), momentum, rtol=1e-4, atol=1e-9)
+    assert fast[0].sum() == pytest.approx(mass.sum(), rel=1e-5)
+    momentum = (mass[:, None] * sim.v.numpy()).sum(0)  # the affine part sums to 0 (B-spline moments)
+    assert np.allclose(fast[1].reshape(-1, 3).sum(0), momentum, rtol=1e-4, atol=1e-9)
 
 
-def test_solver_with_tiled_p2g_agrees_with_the_atomic_one(device):
+def test_solver_with_fast_p2g_agrees_with_the_atomic_one(device):
     scene = scene_for_tests()
     p = mixed_block(scene)
     runs = []
-    for kind in ("atomic", "tiled"):
+    for kind in ("atomic", "chunked"):
         sim = MPMSolver(p, scene, device, p2g=kind)
         for _ in range(2):
             sim.step_frame(1 / 60)
