@@ -347,8 +347,16 @@ def corpus(seed: int = 0) -> list[Case]:
             writer(folder / "bad.ply")
             return ["convert", str(folder / "bad.ply"), str(folder / "out.ply"), "--count", "100"]
 
+        def prepare(folder: Path, writer=writer) -> list[str]:
+            writer(folder / "bad.ply")
+            return ["prepare", str(folder / "bad.ply"), str(folder / "out.ply"), "-q"]
+
+        def render(folder: Path, writer=writer) -> list[str]:
+            writer(folder / "bad.ply")
+            return ["render", str(folder / "bad.ply"), "--out", str(folder / "out.png"), "--device", "cpu", "-q"]
+
         for cmd, make in (("info", info), ("annotate", annotate), ("simulate", simulate), ("diagnose", diagnose),
-                          ("convert", convert)):
+                          ("convert", convert), ("prepare", prepare), ("render", render)):
             cases.append(Case(cmd, name, make))
 
     def no_materials(folder: Path) -> list[str]:
@@ -486,6 +494,20 @@ def corpus(seed: int = 0) -> list[Case]:
             return ["convert", str(folder / fname), str(folder / "out.ply"), *extra]
         cases.append(Case("convert", name, conv))
 
+    for name, flags in {"render size 0": ["--size", "0"], "render size huge": ["--size", "10000000"],
+                        "render camera garbage": ["--camera", "cams.json"], "render frames -1": ["--frames", "-1"],
+                        "render fps 1e-300": ["--fps", "1e-300"]}.items():
+        def render_flags(folder: Path, flags=flags) -> list[str]:
+            (folder / "cams.json").write_bytes(b'{"not": "cameras"}')
+            return ["render", str(good_annotated(folder)), "--out", str(folder / "o.png"), "--device", "cpu",
+                    "-q", *flags]
+        cases.append(Case("render", name, render_flags))
+    for name, flags in {"prepare crop garbage": ["--crop", "box:1,2"], "prepare up zero": ["--up", "0,0,0"],
+                        "prepare up nan": ["--up", "nan,0,1"]}.items():
+        def prepare_flags(folder: Path, flags=flags) -> list[str]:
+            return ["prepare", str(good_annotated(folder)), str(folder / "o.ply"), "-q", *flags]
+        cases.append(Case("prepare", name, prepare_flags, codes=(1, 2)))
+
     for name, flags in {"demo frames 1": ["--frames", "1"], "demo frames -1": ["--frames", "-1"],
                         "demo missing checkpoint": ["--checkpoint", "nothere.pt"]}.items():
         def demo(folder: Path, flags=flags) -> list[str]:
@@ -558,7 +580,7 @@ def run_case(case: Case, folder: Path, timeout_s: float = 120.0) -> Outcome:
             errors = [line for line in text.splitlines() if "error:" in line]
         if "Traceback" in text:
             problems.append("traceback in stderr")
-        elif len(errors) != 1:
+        elif code != 0 and len(errors) != 1:
             problems.append(f"{len(errors)} error lines: {text.strip()[:200]!r}")
     after = digest(folder)
     changed = [k for k in before if after.get(k) != before[k]]

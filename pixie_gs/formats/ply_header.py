@@ -110,6 +110,9 @@ def parse_header(head: bytes, path: str | Path | None = None) -> PlyHeader:
         elif key == "property":
             if not elements:
                 raise InputError(f"malformed PLY header (line {lineno}: property before any element)", path)
+            if len(words) >= 3 and words[-1] in elements[-1].names:
+                raise InputError(f"malformed PLY header (line {lineno}: property {words[-1][:40]!r} appears twice "
+                                 f"in element {elements[-1].name[:40]!r})", path)
             if len(words) == 5 and words[1] == "list":
                 if words[2] not in PLY_TYPES or words[3] not in PLY_TYPES:
                     raise InputError(f"malformed PLY header (line {lineno}: unknown type in {line.strip()!r})",
