@@ -9,7 +9,8 @@ One end-to-end run of the product on a small CPU budget (< 2 minutes on a 2-core
    foliage is thinned), simulate `DEMO_SCENE` (a 0.5 m tree, a gust along +x for 0.6 s, base
    anchored) → DIR/frames/frame_*.ply + tracks.npz, streamed to DIR/demo.rrd (RGB | material |
    log E views side by side, time slider);
-3. point-splat pictures a person can open without rerun: DIR/demo.gif and DIR/demo_strip.png.
+3. real Gaussian-splat renders (pixie_gs.gsrender) of the written frames, to open without rerun:
+   DIR/demo.gif and DIR/demo_strip.png.
 
 Why gravity is off in the demo scene: the Pixie labels give a tree trunk an effective Young's
 modulus of ~2 MPa (visual plausibility, not real wood); such a trunk cannot carry a leafy crown
@@ -174,6 +175,18 @@ def render_views(x_world: np.ndarray, colours: list[np.ndarray], size_px: int, a
                            up="z", bounds=bounds) for c in colours] for x in x_world]
 
 
+def splat_views(frames_dir: Path, up: str, size_px: int, azimuth_deg: float, elevation_deg: float,
+                device: str = "auto") -> list[list[np.ndarray]]:
+    """Real 3DGS renders [frame][colour, material, log E] of the written frame files (every
+    Gaussian, covariances as simulated), from one still camera that frames the whole run."""
+    from .devices import resolve_torch_device
+    from .gsrender.sequence import render_frames_dir
+
+    views, _, _ = render_frames_dir(frames_dir, ["colour", "material", "logE"], size_px, 15.0, up, azimuth_deg,
+                                    elevation_deg, resolve_torch_device(device), (1.0, 1.0, 1.0))
+    return views
+
+
 def animation_frames(views: list[list[np.ndarray]], labels: list[str], times_s: np.ndarray) -> list[np.ndarray]:
     """GIF frames: each frame's views side by side, labelled with the view name and time (s)."""
     from .render import contact_sheet
@@ -266,9 +279,8 @@ def run_scenario(cloud: SplatCloud, scene, out_dir: Path, frames: int, fps: floa
         viz.discard_recording(rec)
         raise
     clock = time.perf_counter()
-    colours = [cloud.rgb(), viz.material_colors(cloud.get("material_id")), viz.log_e_colors(cloud.get("E"))]
     labels = ["colour", "material", "log10 E"]
-    views = render_views(x_world, colours, image_size_px, azimuth_deg, elevation_deg)
+    views = splat_views(files["frames"], scene.up, image_size_px, azimuth_deg, elevation_deg, device)
     if gif:
         save_gif(animation_frames(views, labels, traj.t), files["gif"], fps=fps)
     save_png(strip(views, labels, traj.t, strip_frames), files["strip"])

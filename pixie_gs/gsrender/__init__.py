@@ -17,14 +17,14 @@ import numpy as np
 
 from ..errors import InputError
 from .camera import Camera, look_at, orbit_cameras, read_cameras, robust_sphere
-from .raster import Gaussians, project, rasterize, render, view_colours
+from .raster import Gaussians, project, rasterize, render, render_many, view_colours
 
 MODES = ("colour", "material", "logE", "confidence")
 MODE_LABELS = {"colour": "colour", "material": "material", "logE": "log10 E", "confidence": "confidence"}
 CONFIDENCE_ATTRIBUTES = ("confidence", "material_confidence")
 
 __all__ = ["Camera", "Gaussians", "MODES", "look_at", "orbit_cameras", "read_cameras", "robust_sphere",
-           "project", "rasterize", "render", "view_colours", "available_modes", "mode_colours",
+           "project", "rasterize", "render", "render_many", "view_colours", "available_modes", "mode_colours",
            "render_modes", "to_uint8"]
 
 
@@ -75,9 +75,9 @@ def render_modes(cloud, cam: Camera, modes: list[str], device: str = "cpu",
     """One uint8 image (H,W,3) per mode of `cloud` seen by `cam` (InputError if a result is not
     finite, e.g. NaN in the file)."""
     g = gaussians if gaussians is not None else Gaussians.from_cloud(cloud, device)
+    images = render_many(g, cam, [mode_colours(cloud, mode) for mode in modes], background=background)
     out = []
-    for mode in modes:
-        image = render(g, cam, mode_colours(cloud, mode), background=background)
+    for image in images:
         if not bool(image.isfinite().all()):
             raise InputError("rendering gave non-finite pixels (NaN or inf in the Gaussians)", cloud.source)
         out.append(to_uint8(image))

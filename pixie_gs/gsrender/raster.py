@@ -66,6 +66,7 @@ class Projected:
     depth: torch.Tensor  # (N,) view-space z
     radius: torch.Tensor  # (N,) px, bound of the α ≥ 1/255 footprint; 0 = not drawn
     opacity: torch.Tensor  # (N,)
+    extent: torch.Tensor  # (N,2) px, half width and height of that footprint's bounding box
 
 
 def covariances3d(scales: torch.Tensor, quats: torch.Tensor) -> torch.Tensor:
@@ -110,8 +111,11 @@ def project(g: Gaussians, cam: Camera) -> Projected:
     lam_max = mid + torch.sqrt(torch.clamp(mid * mid - det, min=0.1))
     cutoff = 2.0 * torch.log(torch.clamp(g.opacities * 255.0, min=1.0))  # α ≥ 1/255 inside d² ≤ cutoff
     radius = torch.where(ok, torch.sqrt(cutoff * lam_max) + 1.0, torch.zeros_like(a))
+    # the ellipse dᵀ Σ₂⁻¹ d ≤ cutoff spans ±sqrt(cutoff · Σ₂[k,k]) along axis k
+    extent = torch.stack([torch.sqrt(cutoff * a), torch.sqrt(cutoff * c)], dim=-1) + 1.0
     mean2d = torch.stack([cam.fx * x / zs + cam.cx, cam.fy * y / zs + cam.cy], dim=-1)
-    return Projected(mean2d=mean2d, conic=conic, depth=z, radius=radius, opacity=g.opacities)
+    return Projected(mean2d=mean2d, conic=conic, depth=z, radius=radius, opacity=g.opacities,
+                     extent=torch.where(ok[:, None], extent, torch.zeros_like(extent)))
 
 
 def view_colours(g: Gaussians, cam: Camera) -> torch.Tensor:
@@ -124,19 +128,19 @@ def view_colours(g: Gaussians, cam: Camera) -> torch.Tensor:
     return torch.clamp(torch.einsum("nk,nkc->nc", basis, g.sh) + 0.5, min=0.0)
 
 
-def _tile_pairs(pr: Projected, tiles_x: int, tiles_y: int) -> tuple[torch.Tensor, torch.Tensor]:
+def _tile_pairs(pr: Projected, tiles_x: int, tiles_y: int, tile_px: int = TILE) -> tuple[torch.Tensor, torch.Tensor]:
     """(Gaussian index, tile id) of every Gaussian-tile overlap, sorted by tile then depth."""
     dev = pr.depth.device
     drawn = torch.nonzero(pr.radius > 0).squeeze(1)
     if len(drawn) == 0:
         empty = torch.zeros(0, dtype=torch.long, device=dev)
         return empty, empty
-    m, r = pr.mean2d[drawn], pr.radius[drawn]
-    # pixel i (centre i + 0.5) can be touched when |i + 0.5 − m| ≤ r
-    x0 = torch.clamp(torch.floor((m[:, 0] - r - 0.5) / TILE), 0, tiles_x).long()
-    x1 = torch.clamp(torch.floor((m[:, 0] + r - 0.5) / TILE) + 1, 0, tiles_x).long()
-    y0 = torch.clamp(torch.floor((m[:, 1] - r - 0.5) / TILE), 0, tiles_y).long()
-    y1 = torch.clamp(torch.floor((m[:, 1] + r - 0.5) / TILE) + 1, 0, tiles_y).long()
+    m, e = pr.mean2d[drawn], pr.extent[drawn]
+    # pixel i (centre i + 0.5) can be touched when |i + 0.5 − m| ≤ extent
+    x0 = torch.clamp(torch.floor((m[:, 0] - e[:, 0] - 0.5) / tile_px), 0, tiles_x).long()
+    x1 = torch.clamp(torch.floor((m[:, 0] + e[:, 0] - 0.5) / tile_px) + 1, 0, tiles_x).long()
+    y0 = torch.clamp(torch.floor((m[:, 1] - e[:, 1] - 0.5) / tile_px), 0, tiles_y).long()
+    y1 = torch.clamp(torch.floor((m[:, 1] + e[:, 1] - 0.5) / tile_px) + 1, 0, tiles_y).long()
     w, h = (x1 - x0).clamp(min=0), (y1 - y0).clamp(min=0)
     count = w * h
     keep = count > 0
@@ -159,36 +163,42 @@ def _tile_pairs(pr: Projected, tiles_x: int, tiles_y: int) -> tuple[torch.Tensor
 
 def rasterize(pr: Projected, colours: torch.Tensor, width: int, height: int,
               background: tuple[float, float, float] = (1.0, 1.0, 1.0), backend: str = "warp",
-              chunk_pairs: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+              chunk_pairs: int | None = None,
+              pairs: tuple[torch.Tensor, torch.Tensor] | None = None,
+              tile_px: int = TILE) -> tuple[torch.Tensor, torch.Tensor]:
     """Composite projected Gaussians with per-Gaussian colours (N,3) front to back.
 
     Returns (image (H,W,3) float in [0, ∞) with the background blended in, transmittance (H,W)).
+    With colours (N,M,3) (M ≤ 4 colourings, warp backend) the image is (H,W,M,3).
     backend: "warp" (a per-pixel kernel, fast on CPU and GPU) or "torch" (vectorised tensors, no
     kernel compilation; chunk_pairs Gaussian-tile pairs per step, memory ≈ 60 B × 256 × chunk).
+    pairs: the sorted (Gaussian, tile) lists of `pr` when already made (several colourings of one view).
+    tile_px: tile side (px); the image does not depend on it, only the work does.
     """
     dev = colours.device
     channels = colours.shape[1]
-    tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
+    tiles_x, tiles_y = -(-width // tile_px), -(-height // tile_px)
     n_tiles = tiles_x * tiles_y
-    gid, tile = _tile_pairs(pr, tiles_x, tiles_y)
+    gid, tile = _tile_pairs(pr, tiles_x, tiles_y, tile_px) if pairs is None else pairs
     if backend == "warp":
         from .composite import composite
 
         counts = torch.bincount(tile, minlength=n_tiles)
         ends = torch.cumsum(counts, 0)
         ranges = torch.stack([ends - counts, ends], dim=1).to(torch.int32)
-        return composite(ranges, gid.to(torch.int32), pr.mean2d, pr.conic, pr.opacity, colours.float(),
-                         width, height, tiles_x, TILE, ALPHA_MAX, ALPHA_MIN, T_MIN, background)
+        images, trans = composite(ranges, gid.to(torch.int32), pr.mean2d, pr.conic, pr.opacity, colours.float(),
+                                  width, height, tiles_x, tile_px, ALPHA_MAX, ALPHA_MIN, T_MIN, background)
+        return (images[0] if colours.dim() == 2 else images.permute(1, 2, 0, 3)), trans
     if backend != "torch":
         raise ValueError(f"unknown rasteriser backend {backend!r} (warp or torch)")
     if chunk_pairs is None:
         chunk_pairs = 4096 if dev.type == "cpu" else 65536
-    local = torch.arange(TILE * TILE, device=dev)
-    lx = (local % TILE).to(torch.float32) + 0.5
-    ly = (local // TILE).to(torch.float32) + 0.5
-    acc = torch.zeros(n_tiles, TILE * TILE, channels, device=dev)
-    log_t_all = torch.zeros(n_tiles, TILE * TILE, dtype=torch.float64, device=dev)  # every splat so far
-    log_t_kept = torch.zeros(n_tiles, TILE * TILE, dtype=torch.float64, device=dev)  # splats composited
+    local = torch.arange(tile_px * tile_px, device=dev)
+    lx = (local % tile_px).to(torch.float32) + 0.5
+    ly = (local // tile_px).to(torch.float32) + 0.5
+    acc = torch.zeros(n_tiles, tile_px * tile_px, channels, device=dev)
+    log_t_all = torch.zeros(n_tiles, tile_px * tile_px, dtype=torch.float64, device=dev)  # every splat so far
+    log_t_kept = torch.zeros(n_tiles, tile_px * tile_px, dtype=torch.float64, device=dev)  # splats composited
     done = torch.zeros(n_tiles, dtype=torch.bool, device=dev)
     log_t_min = math.log(T_MIN)
     start = 0
@@ -200,8 +210,8 @@ def rasterize(pr: Projected, colours: torch.Tensor, width: int, height: int,
             g, tl = g[live], tl[live]
             if len(g) == 0:
                 continue
-        px = (tl % tiles_x).to(torch.float32)[:, None] * TILE + lx
-        py = (tl // tiles_x).to(torch.float32)[:, None] * TILE + ly
+        px = (tl % tiles_x).to(torch.float32)[:, None] * tile_px + lx
+        py = (tl // tiles_x).to(torch.float32)[:, None] * tile_px + ly
         dx = px - pr.mean2d[g, 0:1]
         dy = py - pr.mean2d[g, 1:2]
         con = pr.conic[g]
@@ -227,9 +237,9 @@ def rasterize(pr: Projected, colours: torch.Tensor, width: int, height: int,
     trans = torch.exp(log_t_kept).float()
     bg = torch.as_tensor(background, dtype=torch.float32, device=dev)[:channels]
     image = acc + trans[:, :, None] * bg
-    image = image.reshape(tiles_y, tiles_x, TILE, TILE, channels).permute(0, 2, 1, 3, 4)
-    image = image.reshape(tiles_y * TILE, tiles_x * TILE, channels)[:height, :width]
-    trans = trans.reshape(tiles_y, tiles_x, TILE, TILE).permute(0, 2, 1, 3).reshape(tiles_y * TILE, tiles_x * TILE)
+    image = image.reshape(tiles_y, tiles_x, tile_px, tile_px, channels).permute(0, 2, 1, 3, 4)
+    image = image.reshape(tiles_y * tile_px, tiles_x * tile_px, channels)[:height, :width]
+    trans = trans.reshape(tiles_y, tiles_x, tile_px, tile_px).permute(0, 2, 1, 3).reshape(tiles_y * tile_px, tiles_x * tile_px)
     return image, trans[:height, :width]
 
 
@@ -237,11 +247,40 @@ def render(g: Gaussians, cam: Camera, colours: torch.Tensor | np.ndarray | None 
            background: tuple[float, float, float] = (1.0, 1.0, 1.0), backend: str = "warp") -> torch.Tensor:
     """One image (H,W,3) float in [0,1] of the Gaussians seen by `cam`; colours (N,3) in [0,1]
     replace the SH colour (e.g. material or log E colours), None = the view-dependent SH colour."""
+    return render_many(g, cam, [colours], background, backend)[0]
+
+
+def render_many(g: Gaussians, cam: Camera, colour_sets: list, background: tuple[float, float, float] = (1.0, 1.0, 1.0),
+                backend: str = "warp", tile_px: int | None = None) -> list[torch.Tensor]:
+    """Images (H,W,3) in [0,1] of one view, one per colouring in `colour_sets` (None = SH colour),
+    projecting and sorting once. On CPU torch runs single-threaded here: these element-wise steps
+    gain little from threads, and on a busy shared CPU extra threads cost several times more."""
     dev = g.means.device
-    if colours is None:
-        rgb = view_colours(g, cam)
-    else:
-        rgb = torch.as_tensor(np.asarray(colours, np.float32) if isinstance(colours, np.ndarray) else colours,
-                              dtype=torch.float32, device=dev)
-    image, _ = rasterize(project(g, cam), rgb, cam.width, cam.height, background, backend=backend)
-    return torch.clamp(image, 0.0, 1.0)
+    threads = torch.get_num_threads()
+    if dev.type == "cpu":
+        torch.set_num_threads(1)
+    try:
+        pr = project(g, cam)
+        tile_px = tile_px or TILE
+        tiles_x, tiles_y = -(-cam.width // tile_px), -(-cam.height // tile_px)
+        pairs = _tile_pairs(pr, tiles_x, tiles_y, tile_px)
+        rgbs = [view_colours(g, cam) if colours is None else
+                torch.as_tensor(np.asarray(colours, np.float32) if isinstance(colours, np.ndarray) else colours,
+                                dtype=torch.float32, device=dev) for colours in colour_sets]
+        out = []
+        if backend == "warp":  # up to MAX_SETS colourings per compositing pass
+            from .composite import MAX_SETS
+
+            for k in range(0, len(rgbs), MAX_SETS):
+                group = torch.stack(rgbs[k:k + MAX_SETS], dim=1)
+                images, _ = rasterize(pr, group, cam.width, cam.height, background, backend=backend, pairs=pairs,
+                                      tile_px=tile_px)
+                out += [torch.clamp(images[:, :, j], 0.0, 1.0) for j in range(group.shape[1])]
+            return out
+        for rgb in rgbs:
+            image, _ = rasterize(pr, rgb, cam.width, cam.height, background, backend=backend, pairs=pairs,
+                                      tile_px=tile_px)
+            out.append(torch.clamp(image, 0.0, 1.0))
+        return out
+    finally:
+        torch.set_num_threads(threads)
