@@ -51,8 +51,12 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     from ..prepare.updir import fix_negative_up
 
-    parser = build_parser()
-    args = parser.parse_args(fix_negative_up(list(sys.argv[1:] if argv is None else argv)))
+    try:
+        parser = build_parser()  # imports every command module: Ctrl-C may land here
+        args = parser.parse_args(fix_negative_up(list(sys.argv[1:] if argv is None else argv)))
+    except KeyboardInterrupt:
+        print("pixie: interrupted", file=sys.stderr)
+        return 130
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

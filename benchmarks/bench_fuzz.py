@@ -1,0 +1,229 @@
+"""Benchmark (issue 15): the whole bad-input corpus, mutation fuzzing, and interrupted `simulate --force`.
+
+1. Corpus: every case of tests/fuzz_corpus.py (≥ 300 bad inputs over every command), run in-process
+   through `pixie_gs.cli.main.main`; per command: cases, tracebacks, hangs, wrong successes,
+   leftovers, modified inputs, other broken promises (wrong exit code, not exactly one error line).
+2. Mutation fuzzing: N random mutations of a valid .ply through `pixie info --json` (error in one
+   line, or a validated splat with finite covariances).
+3. Interruption: T trials each of SIGINT, SIGTERM and SIGKILL sent at a random moment of
+   `pixie simulate --force` over an existing output (subprocesses, as a user runs it); afterwards
+   the output folder must be the old output byte for byte or the complete new one (frames that
+   match tracks.npz), never a mix; no staging folder may survive a handled signal, and the one a
+   SIGKILLed run leaves is removed by the next run.
+
+All counts except the outcome split (old/new) must be 0. This is a correctness benchmark (no speed
+target, so no baseline); the figures before the change are the issue's (SIGINT deleted the old
+frames, SIGKILL left a folder mixing new frames with old tracks, ~40 tracebacks in ~340 bad inputs).
+
+    python benchmarks/bench_fuzz.py                       # corpus + 1000 mutations + 20×3 interruptions
+    python benchmarks/bench_fuzz.py --mutations 200 --trials 3   # quick look
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+import fuzz_corpus as fc  # noqa: E402
+
+CATEGORIES = ("tracebacks", "hangs", "wrong successes", "leftovers", "modified inputs", "other")
+
+
+def categorise(problems: list[str]) -> collections.Counter:
+    c: collections.Counter = collections.Counter()
+    for p in problems:
+        if p.startswith("traceback"):
+            c["tracebacks"] += 1
+        elif p == "hang":
+            c["hangs"] += 1
+        elif p.startswith("wrong success"):
+            c["wrong successes"] += 1
+        elif p.startswith("leftovers"):
+            c["leftovers"] += 1
+        elif p.startswith("modified inputs"):
+            c["modified inputs"] += 1
+        else:
+            c["other"] += 1
+    return c
+
+
+def print_table(title: str, rows: dict[str, collections.Counter], counts: dict[str, int]) -> None:
+    print(f"\n{title}")
+    print(f"{'command':10s} {'cases':>6s} " + " ".join(f"{c:>15s}" for c in CATEGORIES))
+    total = collections.Counter()
+    for cmd in sorted(rows):
+        total.update(rows[cmd])
+        print(f"{cmd:10s} {counts[cmd]:6d} " + " ".join(f"{rows[cmd][c]:15d}" for c in CATEGORIES))
+    print(f"{'all':10s} {sum(counts.values()):6d} " + " ".join(f"{total[c]:15d}" for c in CATEGORIES))
+
+
+def run_corpus(work: Path, verbose: bool) -> dict:
+    cases = fc.corpus(seed=0)
+    rows: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+    counts: collections.Counter = collections.Counter()
+    t0 = time.perf_counter()
+    for i, case in enumerate(cases):
+        outcome = fc.run_case(case, work / f"case{i:04d}", timeout_s=120)
+        counts[case.command] += 1
+        rows[case.command].update(categorise(outcome.problems))
+        if outcome.problems and verbose:
+            print(f"  {case.command} {case.name}: {outcome.problems}", flush=True)
+        shutil.rmtree(work / f"case{i:04d}", ignore_errors=True)
+    print_table(f"bad-input corpus: {len(cases)} cases in {time.perf_counter() - t0:.0f} s", rows, counts)
+    return {"cases": len(cases), "per_command": {k: {"cases": counts[k], **dict(rows[k])} for k in counts}}
+
+
+def run_mutations(work: Path, iterations: int, verbose: bool) -> dict:
+    rng = np.random.default_rng(2026)
+    base = fc.valid_ply_bytes(30, materials=True)
+    folder = work / "mutations"
+    folder.mkdir()
+    tally = collections.Counter()
+    outcomes = collections.Counter()
+    t0 = time.perf_counter()
+    for _ in range(iterations):
+        blob = base
+        for _ in range(int(rng.integers(1, 4))):
+            blob = fc.mutate(blob, rng)
+        outcome = fc.fuzz_info_once(blob, folder)
+        tally.update(categorise(outcome.problems))
+        outcomes["read ok (valid splat)" if outcome.code == 0 else "refused in one line"] += 1
+        if outcome.problems and verbose:
+            print(f"  mutation: {outcome.problems}", flush=True)
+    print(f"\nmutation fuzzing of a valid .ply through `pixie info --json`: {iterations} iterations in "
+          f"{time.perf_counter() - t0:.0f} s; " + ", ".join(f"{k} {v}" for k, v in outcomes.items()))
+    print("  " + ", ".join(f"{c} {tally[c]}" for c in CATEGORIES))
+    return {"iterations": iterations, **dict(outcomes), **{c: tally[c] for c in CATEGORIES}}
+
+
+# ------------------------------------------------------------------------- interruptions
+def _simulate_argv(ply: Path, out: Path, scene: Path, frames: int) -> list[str]:
+    return [sys.executable, "-m", "pixie_gs", "simulate", str(ply), "--out", str(out), "--scene", str(scene),
+            "--frames", str(frames), "--device", "cpu", "--force", "-q"]
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())} if folder.is_dir() else {}
+
+
+def _is_whole_new(folder: Path, frames: int, n: int) -> bool:
+    """Every frame of the new run present and consistent with tracks.npz (positions equal)."""
+    from pixie_gs.splat import read_splat
+
+    names = sorted(p.name for p in folder.iterdir())
+    if names != [f"frame_{i:05d}.ply" for i in range(frames)] + ["preview.png", "tracks.npz"]:
+        return False
+    with np.load(folder / "tracks.npz") as tr:
+        x = tr["x"]
+    if x.shape != (frames, n, 3):
+        return False
+    return all(np.array_equal(read_splat(folder / f"frame_{i:05d}.ply").means, x[i]) for i in range(frames))
+
+
+def run_interruptions(work: Path, trials: int, seed: int = 7) -> dict:
+    rng = np.random.default_rng(seed)
+    base = work / "interrupt"
+    base.mkdir()
+    n = 300
+    ply = fc.write_ply(base / "in.ply", fc.vertex_table(n, materials=True))
+    scene = base / "scene.json"
+    scene.write_text(json.dumps(fc.scene_dict()))
+    out = base / "out"
+    old_frames, new_frames = 3, 16
+    subprocess.run(_simulate_argv(ply, out, scene, old_frames), check=True, cwd=base)
+    pristine = base / "pristine"
+    shutil.copytree(out, pristine)
+    old = _snapshot(out)
+    t0 = time.perf_counter()
+    subprocess.run(_simulate_argv(ply, out, scene, new_frames), check=True, cwd=base)
+    run_s = time.perf_counter() - t0
+    assert _is_whole_new(out, new_frames, n)
+    results = {}
+    print(f"\ninterrupting `pixie simulate --force` ({n} Gaussians, {new_frames} frames over an existing "
+          f"{old_frames}-frame output; an uninterrupted run takes {run_s:.1f} s): {trials} trials per signal")
+    print(f"{'signal':8s} {'old whole':>10s} {'new whole':>10s} {'mixed':>6s} {'leftovers':>10s} "
+          f"{'tracebacks':>11s} {'input changed':>14s}")
+    before_input = ply.read_bytes()
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+        tally = collections.Counter()
+        for _ in range(trials):
+            shutil.rmtree(out)
+            shutil.copytree(pristine, out)
+            delay = float(rng.uniform(0.0, run_s * 1.05))
+            proc = subprocess.Popen(_simulate_argv(ply, out, scene, new_frames), cwd=base,
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            time.sleep(delay)
+            proc.send_signal(sig)
+            _, err = proc.communicate(timeout=120)
+            if _snapshot(out) == old:
+                tally["old whole"] += 1
+            elif _is_whole_new(out, new_frames, n):
+                tally["new whole"] += 1
+            else:
+                tally["mixed"] += 1
+            if "Traceback" in err:
+                tally["tracebacks"] += 1
+            stray = [p.name for p in base.iterdir() if p.name not in ("in.ply", "scene.json", "out", "pristine")]
+            stray += [p.name for p in out.iterdir() if p.name.startswith(".")]
+            if stray:
+                if sig == signal.SIGKILL:
+                    tally["killed-run staging folders"] += 1  # unavoidable; cleared by the next run
+                else:
+                    tally["leftovers"] += 1
+            if ply.read_bytes() != before_input:
+                tally["input changed"] += 1
+        if sig == signal.SIGKILL:  # the next run must clear what SIGKILLed runs left
+            shutil.rmtree(out)
+            shutil.copytree(pristine, out)
+            subprocess.run(_simulate_argv(ply, out, scene, old_frames), check=True, cwd=base)
+            stray = [p.name for p in base.iterdir() if p.name not in ("in.ply", "scene.json", "out", "pristine")]
+            tally["leftovers"] += len(stray)
+        name = signal.Signals(sig).name
+        results[name] = dict(tally)
+        print(f"{name:8s} {tally['old whole']:10d} {tally['new whole']:10d} {tally['mixed']:6d} "
+              f"{tally['leftovers']:10d} {tally['tracebacks']:11d} {tally['input changed']:14d}"
+              + (f"   (staging folders left by killed runs: {tally['killed-run staging folders']}, all cleared "
+                 f"by the next run)" if sig == signal.SIGKILL else ""))
+    return {"run_s": run_s, **results}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--mutations", type=int, default=1000)
+    ap.add_argument("--trials", type=int, default=20, help="interruptions per signal")
+    ap.add_argument("--skip", default="", help="comma list of parts to skip: corpus,mutations,interrupt")
+    ap.add_argument("--verbose", action="store_true")
+    ap.add_argument("--json", default=None, help="also write the figures here")
+    args = ap.parse_args()
+    skip = set(filter(None, args.skip.split(",")))
+    work = Path(tempfile.mkdtemp(prefix="pixie_fuzz_"))
+    figures = {}
+    try:
+        if "corpus" not in skip:
+            figures["corpus"] = run_corpus(work, args.verbose)
+        if "mutations" not in skip:
+            figures["mutations"] = run_mutations(work, args.mutations, args.verbose)
+        if "interrupt" not in skip:
+            figures["interrupt"] = run_interruptions(work, args.trials)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(figures, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
