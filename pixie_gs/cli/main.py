@@ -77,6 +77,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"pixie {args.command}: error: out of memory (the input or the requested sizes are too large "
               "for this machine)", file=sys.stderr)
         return 3
+    except BrokenPipeError:  # stdout closed early (e.g. `pixie info … | head`): stop quietly, like other tools
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except OSError as exc:  # permissions, a full disk, an unwritable folder…: one line naming the path
         print(f"pixie {args.command}: error: {os_error_text(exc)}", file=sys.stderr)
         return 1
