@@ -24,6 +24,7 @@ BAD_ARGUMENTS = {
     "generate": (["gen_out", "--count", "0"], 1, "--count"),
     "train": (["missing_dir", "--out", "model.pt"], 1, "missing_dir"),
     "evaluate": (["missing.pt", "missing_dir"], 1, "missing.pt"),
+    "prepare": (["missing.ply", "out.ply"], 1, "missing.ply"),
     "annotate": (["missing.ply", "out.ply"], 1, "missing.ply"),
     "simulate": (["missing.ply", "--out", "frames"], 1, "missing.ply"),
     "diagnose": (["missing.ply", "missing.npz", "--scene", "missing.json", "--out", "diag"], 1, "missing.ply"),

@@ -43,9 +43,13 @@ def run(args: argparse.Namespace) -> int:
     given_up = parse_up(args.up)
     parse_crop(args.crop)
     cloud = read_splat_valid(args.input, args.drop_invalid)
-    cloud, prepared = prepare_from_args(cloud, args)
-    out = annotate_cloud(cloud, args.checkpoint, args.device, given_up if given_up is not None else "z",
+    prepared_cloud, prepared = prepare_from_args(cloud, args)
+    out = annotate_cloud(prepared_cloud, args.checkpoint, args.device, given_up if given_up is not None else "z",
                          prepared=prepared)
+    if prepared is not None:  # the output keeps the input's properties + materials (roles: `pixie prepare`)
+        mid, E, nu, rho = out.get_materials()
+        out = cloud.copy()
+        out.set_materials(mid, E, nu, rho)
     if args.rrd:
         from ..viz import log_material_views, recording, send_layout
 

@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     cloud = read_splat_valid(args.input, args.drop_invalid)
     material_arrays(cloud)  # one-line error before anything is created
     scene = load_scene(args)
-    cloud, prepared = _prepare(cloud, args, scene)
+    prepared_cloud, prepared = _prepare(cloud, args, scene)
     if args.rrd:
         check_distinct_output(args.input, args.rrd, force=False)
         if Path(args.rrd).resolve().parent == Path(args.out).resolve():
@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     if prepared is not None:
         from ..sim.prepared import place_prepared
 
-        tf = place_prepared(cloud, prepared, scene).transform
+        tf = place_prepared(prepared_cloud, prepared, scene).transform
     else:
         tf = placement_transform(cloud.means, scene)
     entities = viz.MATERIAL_VIEW_ENTITIES
@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
         if prepared is not None:
             from ..sim.prepared import simulate_prepared
 
-            traj = simulate_prepared(cloud, prepared, scene, args.frames, args.fps, device=args.device,
+            traj = simulate_prepared(prepared_cloud, prepared, scene, args.frames, args.fps, device=args.device,
                                      on_frame=on_frame, fill=True if args.fill else None,
                                      positions_out=writer.positions)
         else:
@@ -131,6 +131,8 @@ def _prepare(cloud, args: argparse.Namespace, scene):
 
     parse_up(args.up)
     parse_crop(args.crop)
+    if parse_up(args.up) is None and args.scene and scene.up != "z":
+        args.up = scene.up  # the scene file names the up axis: that is a given up
     if args.no_prepare:
         if parse_up(args.up) is not None and args.up.lstrip("+") in ("x", "y", "z", "-x", "-y", "-z"):
             scene.up = args.up.lstrip("+")

@@ -10,8 +10,8 @@ the file's six axes, since capture tools often write axis-aligned files) is scor
     × stability (the centre of mass projects inside the support's footprint)
     × one-sidedness (few Gaussians below the plane)
 
-and the best wins. A plane holding ≥ 8 % of the Gaussians over an extent wider than the rest of
-the scene's footprint is reported as a ground plane. Confidence compares the winner with the
+and the best wins. A plane holding ≥ 8 % of the Gaussians and reaching well beyond what stands on it (twice its
+footprint area) is reported as a ground plane; an object's own flat base is not. Confidence compares the winner with the
 best candidate more than 20° away from it.
 """
 from __future__ import annotations
@@ -22,8 +22,9 @@ import numpy as np
 
 from .updir import AXES
 
-AXIS_PRIOR = 1.15  # weak preference for the file's own axes (capture tools' conventions)
+AXIS_PRIOR = 1.3  # weak preference for the file's own axes (capture tools' conventions)
 GROUND_SHARE = 0.08
+GROUND_WIDER = 2.0  # a floor's footprint (area) exceeds what stands on it by this factor; a flat base does not
 WEAK_SUPPORT = 0.03  # below this share no flat base is convincing: fall back to the shape  # a support plane holding this share of the Gaussians is a floor/table
 
 
@@ -174,8 +175,9 @@ def score_direction(points: np.ndarray, weights: np.ndarray, normals: np.ndarray
     foot = points[band]
     foot2d = np.stack([foot @ a, foot @ b], axis=1)
     stable = inside_footprint(foot2d, np.array([centre @ a, centre @ b]))
-    all2d = np.stack([points @ a, points @ b], axis=1)
-    span_all = all2d.max(axis=0) - all2d.min(axis=0)
+    above = ~band
+    all2d = np.stack([points[above] @ a, points[above] @ b], axis=1) if above.any() else np.zeros((1, 2))
+    span_all = np.percentile(all2d, 98, axis=0) - np.percentile(all2d, 2, axis=0)
     span_foot = foot2d.max(axis=0) - foot2d.min(axis=0) if len(foot2d) else np.zeros(2)
     ratio = float(np.prod(span_foot) / max(np.prod(span_all), 1e-30))
     score = support * (1.0 if stable else 0.25) * max(0.0, 1.0 - below / 0.05) ** 2
@@ -248,6 +250,6 @@ def estimate_up(points: np.ndarray, alphas: np.ndarray, rotations: np.ndarray, l
             return UpEstimate(tall, 0.3, "shape", s.base, s.support, False)
     rival = max((s.score for s in scored if np.dot(s.up, best.up) < np.cos(np.radians(20.0))), default=0.0)
     confidence = 0.0 if best.score <= 0 else float(np.clip(1.0 - rival / best.score, 0.0, 1.0))
-    is_ground = best.support >= GROUND_SHARE and best.footprint_ratio > 0.5 and best.stable
+    is_ground = best.support >= GROUND_SHARE and best.footprint_ratio > GROUND_WIDER and best.stable
     method = "ground-plane" if is_ground else ("flat-base" if best.support >= 0.01 else "shape")
     return UpEstimate(best.up, confidence, method, best.base, best.support, is_ground)

@@ -17,6 +17,7 @@ from .scene import (ROLE_BACKGROUND, ROLE_FLOATER, ROLE_GROUND, ROLE_NAMES, ROLE
                     PreparedScene)
 from .updir import nearest_axis, parse_up, rotation_to_z
 
+LOW_CONFIDENCE = 0.06  # below this the estimate is not trusted and +z is kept
 SNAP_DEG = 2.5  # an estimate this close to a file axis is taken as that axis
 TINY_COMPONENT = 0.002  # share of the Gaussians below which a cluster away from objects is a floater
 
@@ -50,6 +51,8 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
     if given is None:
         est = estimate_up(x[keep], alpha[keep], cloud.rotations[keep], cloud.log_scales[keep], spacing, seed=seed)
         u, method, confidence = est.up, est.method, est.confidence
+        if confidence < LOW_CONFIDENCE:  # no clear evidence: keep the file's +z (pixie's own convention)
+            u, method, is_ground = np.array([0.0, 0.0, 1.0]), f"default (evidence weak: {est.method})", False
         axis, angle = nearest_axis(u)
         if angle < SNAP_DEG:  # a file written axis-aligned by its tool: take the axis exactly
             u = parse_up(axis)
@@ -63,8 +66,8 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
         lo, hi = np.percentile(x[sub], [1, 99], axis=0)
         tol = max(1.5 * spacing, 0.006 * float(np.linalg.norm(hi - lo)))
         s = score_direction(x[sub], np.clip(alpha[sub], 0.05, 1), normals, flat, u, tol, refine=False)
-        from .gravity import GROUND_SHARE
-        is_ground = s.support >= GROUND_SHARE and s.footprint_ratio > 0.5 and s.stable
+        from .gravity import GROUND_SHARE, GROUND_WIDER
+        is_ground = s.support >= GROUND_SHARE and s.footprint_ratio > GROUND_WIDER and s.stable
         base = s.base
     R = rotation_to_z(u)
     xu = x @ R.T
@@ -75,8 +78,8 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
     ground_extent = None
     if is_ground and crop_obj is None or (is_ground and crop_obj is not None and crop_obj.kind == "point"):
         h = xu[:, 2] - base
-        on_ground = keep & (np.abs(h) < 2.0 * tol)
-        below = keep & (h <= -2.0 * tol)
+        on_ground = keep & (np.abs(h) < tol)
+        below = keep & (h <= -tol)
         role[on_ground] = ROLE_GROUND
         keep &= ~(on_ground | below)
         ground_height = float(base)

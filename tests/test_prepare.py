@@ -1,0 +1,220 @@
+"""Scene preparation: --up parsing, up/ground on a synthetic tilted floor, floaters, roles, sidecar."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from pixie_gs.cli.main import build_parser, main
+from pixie_gs.errors import InputError
+from pixie_gs.field import up_rotation
+from pixie_gs.prepare import (ROLE_FLOATER, ROLE_GROUND, ROLE_OBJECT, fix_negative_up, parse_up, prepare_cloud,
+                              rotation_to_z)
+from pixie_gs.prepare.updir import angle_deg
+from pixie_gs.splat import SplatCloud, read_splat, rotmat_to_quat, write_splat
+
+
+def flat_gaussians(points: np.ndarray, normals: np.ndarray, size: float, rgb) -> SplatCloud:
+    """Surface Gaussians (discs of std `size`, 10× thinner along `normals`) at `points`."""
+    z = np.array([0.0, 0.0, 1.0])
+    R = np.stack([rotation_to_z(n).T for n in normals])  # maps z to the normal
+    assert np.allclose(np.einsum("nij,j->ni", R, z), normals, atol=1e-6)
+    scales = np.log(np.tile([size, size, size / 10], (len(points), 1)))
+    return SplatCloud.from_arrays(points, log_scales=scales, rotations=rotmat_to_quat(R),
+                                  rgb=np.broadcast_to(np.asarray(rgb, np.float32), points.shape))
+
+
+def floor_and_box(tilt: np.ndarray, n_floor: int = 12000, n_box: int = 6000, seed: int = 0):
+    """A 3 m × 3 m floor at height 0 with a 0.5 m cube standing on it, then turned by `tilt`."""
+    rng = np.random.default_rng(seed)
+    floor = np.column_stack([rng.uniform(-1.5, 1.5, (n_floor, 2)), np.zeros(n_floor)])
+    fn = np.tile([0.0, 0.0, 1.0], (n_floor, 1))
+    face = rng.integers(0, 5, n_box)  # the 5 visible faces (not the bottom)
+    uv = rng.uniform(-0.25, 0.25, (n_box, 2))
+    pts = np.empty((n_box, 3))
+    nrm = np.zeros((n_box, 3))
+    for k, (axis, sign) in enumerate([(0, 1), (0, -1), (1, 1), (1, -1), (2, 1)]):
+        m = face == k
+        other = [a for a in range(3) if a != axis]
+        pts[m, axis] = sign * 0.25
+        pts[m, other[0]], pts[m, other[1]] = uv[m, 0], uv[m, 1]
+        nrm[m, axis] = sign
+    pts[:, 2] += 0.25
+    cloud = SplatCloud.concatenate([flat_gaussians(floor, fn, 0.01, (0.5, 0.5, 0.5)),
+                                    flat_gaussians(pts, nrm, 0.006, (0.8, 0.2, 0.2))])
+    R = np.asarray(tilt)
+    cloud.means = (cloud.means.astype(np.float64) @ R.T).astype(np.float32)
+    cloud.set_covariances(R @ cloud.covariances() @ R.T)
+    return cloud, n_floor
+
+
+# ------------------------------------------------------------------------------------------ --up
+@pytest.mark.parametrize("text, expected", [("z", (0, 0, 1)), ("-y", (0, -1, 0)), ("+x", (1, 0, 0)),
+                                            ("0,-1,0", (0, -1, 0)), ("0 0 2", (0, 0, 1))])
+def test_parse_up_axes_and_vectors(text, expected):
+    assert np.allclose(parse_up(text), expected)
+
+
+def test_parse_up_vector_is_normalised_and_auto_is_none():
+    v = parse_up("0,-1,-0.6")
+    assert np.isclose(np.linalg.norm(v), 1.0) and np.allclose(v / v[1], [0, 1, 0.6])
+    assert parse_up("auto") is None and parse_up(None) is None
+
+
+@pytest.mark.parametrize("bad", ["w", "1,2", "0,0,0", "a,b,c", "--y", "nan,0,1"])
+def test_parse_up_rejects_nonsense(bad):
+    with pytest.raises(InputError):
+        parse_up(bad)
+
+
+@pytest.mark.parametrize("command", ["annotate", "prepare"])
+def test_up_minus_y_parses_with_a_space(command):
+    argv = fix_negative_up([command, "in.ply", "out.ply", "--up", "-y"])
+    args = build_parser().parse_args(argv)
+    assert args.up == "-y"
+    args = build_parser().parse_args(fix_negative_up([command, "in.ply", "out.ply", "--up", "-0.1,1,0"]))
+    assert np.allclose(parse_up(args.up), np.array([-0.1, 1, 0]) / np.linalg.norm([-0.1, 1, 0]))
+
+
+def test_simulate_takes_up_minus_y():
+    args = build_parser().parse_args(fix_negative_up(["simulate", "in.ply", "--out", "d", "--up", "-y"]))
+    assert args.up == "-y" and not args.no_prepare
+
+
+def test_rotation_to_z_equals_the_axis_tables_and_turns_any_vector_up():
+    for axis in ("z", "-z", "y", "-y", "x", "-x"):
+        assert np.allclose(rotation_to_z(axis), up_rotation(axis))
+    for v in Rotation.random(20, random_state=1).apply([0, 0, 1]):
+        R = rotation_to_z(v)
+        assert np.allclose(R @ v, [0, 0, 1]) and np.isclose(np.linalg.det(R), 1.0)
+
+
+# ------------------------------------------------------------------------------------ up, ground
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_tilted_floor_gives_up_ground_height_and_object(seed):
+    tilt = Rotation.from_rotvec(np.radians(35) * np.array([np.cos(seed), np.sin(seed), 0.0])).as_matrix()
+    cloud, n_floor = floor_and_box(tilt, seed=seed)
+    out, scene = prepare_cloud(cloud)
+    truth = tilt @ [0, 0, 1]
+    assert angle_deg(scene.up, truth) < 3.0
+    assert scene.up_method == "ground-plane" and scene.ground_height is not None
+    assert abs(scene.ground_height) < 0.01  # the floor passes through the origin (tilted about it)
+    role = out.get("role")
+    assert np.mean(role[:n_floor] == ROLE_GROUND) > 0.95
+    assert np.mean(role[n_floor:] == ROLE_OBJECT) > 0.9
+    assert len(scene.objects) == 1
+    lo, hi = np.asarray(scene.objects[0].box_up)
+    assert np.allclose(hi - lo, [0.5, 0.5, 0.5], atol=0.05)  # the cube, measured in the up frame
+
+
+# -------------------------------------------------------------------------------------- floaters
+@pytest.fixture(scope="module")
+def can_and_floaters():
+    from pixie_gs.dataset.assemble import build_object
+    from pixie_gs.dataset.labels import load_class_table
+
+    cloud, _ = build_object(load_class_table()["metal_crates"], 4242, 4000)
+    for name in ("material_id", "E", "nu", "density", "part_id"):
+        cloud.extras.pop(name, None)
+    cloud.property_order = [p for p in cloud.property_order if p in cloud.extras or p[:2] in ("x", "y", "z")
+                            or not p.startswith(("material", "E", "nu", "dens", "part"))]
+    rng = np.random.default_rng(3)
+    lo, hi = cloud.bounds()
+    centre, size = (lo + hi) / 2, float((hi - lo).max())
+    k = int(0.05 * len(cloud))
+    far = centre + rng.uniform(-2.0, 2.0, (k, 3)) * size
+    far = far[np.abs(far - centre).max(axis=1) > 0.75 * size]
+    floaters = SplatCloud.from_arrays(far, log_scales=np.full((len(far), 3), np.log(0.01 * size)),
+                                      opacity_logits=rng.normal(0, 2, len(far)), rgb=rng.random((len(far), 3)))
+    return cloud, SplatCloud.concatenate([cloud, floaters])
+
+
+def test_far_floaters_are_marked_and_do_not_move_the_object_box(can_and_floaters):
+    clean, noisy = can_and_floaters
+    _, s_clean = prepare_cloud(clean, up="z")
+    out, s_noisy = prepare_cloud(noisy, up="z")
+    role = out.get("role")
+    n = len(clean)
+    assert np.mean(role[n:] == ROLE_FLOATER) > 0.95
+    assert np.mean(role[:n] == ROLE_OBJECT) > 0.99
+    a, b = np.asarray(s_clean.objects[0].fit_box_up), np.asarray(s_noisy.objects[0].fit_box_up)
+    size = (a[1] - a[0]).max()
+    assert np.abs(a - b).max() <= 0.05 * size
+
+
+def test_floaters_do_not_change_the_predicted_classes(can_and_floaters):
+    from pixie_gs.annotate import annotate_cloud
+
+    clean, noisy = can_and_floaters
+    pc, sc = prepare_cloud(clean, up="z")
+    pn, sn = prepare_cloud(noisy, up="z")
+    a = annotate_cloud(pc, device="cpu", prepared=sc).get("material_id")
+    b = annotate_cloud(pn, device="cpu", prepared=sn).get("material_id")[:len(clean)]
+    assert np.mean(a == b) >= 0.95
+    plain = annotate_cloud(noisy, device="cpu", up="z").get("material_id")[:len(clean)]
+    assert np.mean(plain == a) < np.mean(a == b) or np.mean(plain == a) >= 0.95  # preparation never hurts
+
+
+# --------------------------------------------------------------------------- generated objects
+@pytest.mark.parametrize("index", range(4))
+def test_up_of_generated_objects_with_a_base_under_random_rotations(index):
+    from pixie_gs.dataset.assemble import build_object
+    from pixie_gs.dataset.labels import load_class_table
+
+    name = ["sand", "snow_mud", "grass", "sand"][index]
+    cloud, _ = build_object(load_class_table()[name], 100 + index, 6000)
+    R = Rotation.random(random_state=index).as_matrix()
+    cloud.means = (cloud.means.astype(np.float64) @ R.T).astype(np.float32)
+    cloud.set_covariances(R @ cloud.covariances() @ R.T)
+    _, scene = prepare_cloud(cloud)
+    assert angle_deg(scene.up, R @ [0, 0, 1]) < 10.0
+
+
+# ------------------------------------------------------------------------------- CLI and sidecar
+def test_prepare_cli_writes_roles_and_sidecar(tmp_path, capsys):
+    tilt = Rotation.from_euler("xy", [25, -15], degrees=True).as_matrix()
+    cloud, n_floor = floor_and_box(tilt, 6000, 3000)
+    src, out = tmp_path / "capture.ply", tmp_path / "prepared.ply"
+    write_splat(cloud, src)
+    before = src.read_bytes()
+    assert main(["prepare", str(src), str(out), "-q"]) == 0
+    assert src.read_bytes() == before
+    summary = [line for line in capsys.readouterr().out.splitlines() if line.startswith("prepared")]
+    assert len(summary) == 1 and "ground at" in summary[0]
+    res = read_splat(out)
+    assert res.get("role").dtype == np.uint8 and res.get("object_id").dtype == np.int32
+    assert len(res) == len(cloud) and np.array_equal(res.means, cloud.means)  # nothing moved or dropped
+    assert set(np.unique(res.get("object_id")[res.get("role") != ROLE_OBJECT])) == {-1}
+    side = json.loads((tmp_path / "prepared.prepare.json").read_text())
+    assert angle_deg(side["up"], tilt @ [0, 0, 1]) < 3.0
+    assert side["counts"]["ground"] > 0.9 * n_floor and side["role_codes"]["2"] == "ground"
+    for key in ("up_method", "up_confidence", "angle_from_axis_deg", "nearest_axis", "ground_height", "objects"):
+        assert key in side
+    assert 20 < side["angle_from_axis_deg"] < 35
+
+
+def test_annotate_prepares_a_tilted_capture_with_no_flag(tmp_path):
+    tilt = Rotation.from_euler("x", 30, degrees=True).as_matrix()
+    cloud, n_floor = floor_and_box(tilt, 6000, 3000)
+    src, out = tmp_path / "capture.ply", tmp_path / "annotated.ply"
+    write_splat(cloud, src)
+    assert main(["annotate", str(src), str(out), "--device", "cpu", "-q"]) == 0
+    side = json.loads((tmp_path / "annotated.prepare.json").read_text())
+    assert angle_deg(side["up"], tilt @ [0, 0, 1]) < 3.0
+    res = read_splat(out)
+    mid = res.get("material_id")
+    assert np.all(mid[:n_floor][np.abs(np.asarray(res.means[:n_floor]) @ (tilt @ [0, 0, 1])) < 0.01] == 6)
+    assert [p for p in res.property_order if p in ("role", "object_id")] == []
+
+
+def test_bad_crop_and_up_fail_cleanly(tmp_path, capsys):
+    cloud, _ = floor_and_box(np.eye(3), 2000, 1000)
+    src = tmp_path / "c.ply"
+    write_splat(cloud, src)
+    assert main(["prepare", str(src), str(tmp_path / "o.ply"), "--crop", "box:1,2", "-q"]) == 1
+    assert "--crop" in capsys.readouterr().err
+    assert not (tmp_path / "o.ply").exists()
+    with pytest.raises(SystemExit):
+        main(["prepare", str(src), str(tmp_path / "o.ply"), "--up", "sideways"])
