@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
+
 from ..devices import DEVICE_CHOICES, DEVICE_HELP
 from ..errors import InputError
 
@@ -38,8 +40,11 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--size", type=int, default=320, metavar="PX", help="height of each view in px (320)")
     p.add_argument("--frames", type=int, default=60, metavar="N", help="orbit: views around the object (60)")
     p.add_argument("--fps", type=float, default=15.0, metavar="F", help="animation frames per second (15)")
-    p.add_argument("--up", default="z", choices=("z", "y", "-y", "x", "-x", "-z"),
-                   help="axis of the splat that points up (z)")
+    from ..prepare.updir import add_up_option
+
+    add_up_option(p, default="z")
+    p.add_argument("--crop", metavar="SPEC", help="draw only the Gaussians inside box:x0,y0,z0,x1,y1,z1 or "
+                   "sphere:cx,cy,cz,r (file coordinates; for scene captures, to show one object)")
     p.add_argument("--elevation", type=float, default=20.0, metavar="DEG", help="camera elevation (20°)")
     p.add_argument("--azimuth", type=float, default=-90.0, metavar="DEG",
                    help="camera azimuth around the up axis; the orbit starts here (−90°: looking along +y for z up)")
@@ -59,6 +64,16 @@ def parse_modes(text: str | None) -> list[str] | None:
     if not modes:
         raise InputError("--modes is empty")
     return modes
+
+
+def parse_region(text: str | None):
+    """A box or sphere crop (prepare's --crop syntax); a point crop selects a cluster, not a region."""
+    from ..prepare.objects import parse_crop
+
+    crop = parse_crop(text)
+    if crop is not None and crop.kind == "point":
+        raise InputError("--crop for render must be a box: or sphere: region")
+    return crop
 
 
 def run(args: argparse.Namespace) -> int:
@@ -83,6 +98,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("output is the input; refusing to overwrite it", out)
     if not out.parent.resolve().is_dir():
         raise InputError("output directory does not exist", out.parent)
+    from ..prepare.updir import parse_up
+
+    up = parse_up(args.up)
+    if up is None:
+        raise InputError("--up auto is not available for render; give an axis (z, y, -y, …) or a vector")
+    crop = parse_region(args.crop)
     device = resolve_torch_device(args.device)
     background = BACKGROUNDS[args.background]
     cameras = None
@@ -100,8 +121,10 @@ def run(args: argparse.Namespace) -> int:
     if source.is_dir():
         if args.camera == "orbit":
             raise InputError("frames are drawn from a still camera; use --camera fixed or a cameras file")
+        if crop is not None:
+            raise InputError("--crop applies to a splat file, not to a frames directory")
         stage(f"rendering the frames of {source}")
-        views, modes, labels = render_frames_dir(source, modes, args.size, args.fps, args.up, args.azimuth,
+        views, modes, labels = render_frames_dir(source, modes, args.size, args.fps, up, args.azimuth,
                                                  args.elevation, device, background,
                                                  camera=cameras[0] if cameras else None)
         if kind == ".png":
@@ -110,9 +133,14 @@ def run(args: argparse.Namespace) -> int:
             frames = [sheet(v, modes, lab) for v, lab in zip(views, labels)]
     else:
         cloud = read_splat(source)
+        if crop is not None:
+            inside = crop.contains(cloud.means.astype(np.float64))
+            if not inside.any():
+                raise InputError(f"--crop {args.crop} holds none of its {len(cloud)} Gaussians", source)
+            cloud = cloud.subset(np.flatnonzero(inside))
         if cameras is None:
             count = args.frames if (args.camera == "orbit" or (args.camera == "auto" and kind != ".png")) else 1
-            cameras = orbit_cameras(cloud.means, count, args.size, args.size, up=args.up,
+            cameras = orbit_cameras(cloud.means, count, args.size, args.size, up=up,
                                     elevation_deg=args.elevation, azimuth0_deg=args.azimuth)
         elif kind == ".png":
             cameras = cameras[:1]
