@@ -244,15 +244,9 @@ def main() -> None:
     parser.add_argument("--order", nargs="+", default=["random", "sorted"], choices=["lattice", "random", "sorted"],
                         help="particle order(s) to time (see above)")
     parser.add_argument("--p2g", nargs="+", default=["auto"], choices=["auto", "chunked", "atomic"],
-                        help="P2G kernel(s): chunked (same-cell runs summed per thread), atomic (the plain one), "
+                        help="P2G kernel(s): chunked (one thread per same-cell run), atomic (the plain one), "
                              "auto (solver default: chunked on a GPU, atomic on the CPU)")
-    parser.add_argument("--p2g-chunk", type=int, default=0, help="particles per thread of the chunked P2G (0: default)")
-    parser.add_argument("--p2g-block", type=int, default=0, help="threads per block of the chunked P2G (0: default)")
     args = parser.parse_args()
-    from pixie_gs.sim import kernels
-
-    kernels.P2G_CHUNK = args.p2g_chunk or kernels.P2G_CHUNK
-    kernels.P2G_CHUNK_BLOCK = args.p2g_block or kernels.P2G_CHUNK_BLOCK
 
     from pixie_gs.devices import resolve_warp_device
 

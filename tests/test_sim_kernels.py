@@ -119,18 +119,25 @@ def test_particle_arrays_are_kept_in_cell_order_and_results_in_file_order(device
 def test_cell_order_sorts_like_numpy_argsort(device):
     import warp as wp
 
-    from pixie_gs.sim.sort import cell_order
+    from pixie_gs.sim.sort import cell_order, cell_runs
 
     scene = scene_for_tests()
     sim = MPMSolver(mixed_block(scene), scene, device, sort_every=0)
-    perm = cell_order(sim.x, sim.grid_info).numpy()
+    perm, keys = (a.numpy() for a in cell_order(sim.x, sim.grid_info))
     x = sim.x.numpy().astype(np.float64)
     g = (x - scene.domain_origin()) / scene.dx
     cell = np.floor(g - 0.5).astype(np.int64)
     dims = np.array(scene.grid_dims)
     key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
     assert np.array_equal(perm, np.argsort(key, kind="stable"))
-    wp.synchronize()
+    assert np.array_equal(keys, key[perm])
+    # runs: a new key, or every MAX_RUN-th particle of a long run
+    starts = wp.zeros(sim.n + 1, dtype=wp.int32, device=device)
+    count = cell_runs(wp.array(keys, dtype=wp.int32, device=device), starts, max_run=4)
+    i = np.arange(sim.n)
+    heads = i[(i == 0) | (np.r_[0, np.diff(keys)] != 0) | (i % 4 == 0)]
+    assert count == len(heads)
+    assert np.array_equal(starts.numpy()[:count + 1], np.append(heads, sim.n))
 
 
 def test_sorted_and_unsorted_runs_agree(device):
@@ -155,9 +162,9 @@ def test_sorted_and_unsorted_runs_agree(device):
     assert np.abs(F0 - F1)[snow].max() < 5e-4
 
 
-def scatter(sim: MPMSolver, kernel: str, chunk: int = 1) -> tuple[np.ndarray, ...]:
-    """(grid mass, momentum, fixed weight) after one P2G of `kernel` ("atomic" or "chunked" with
-    `chunk` particles per thread)."""
+def scatter(sim: MPMSolver, kernel: str, runs: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+    """(grid mass, momentum, fixed weight) after one P2G of `kernel`: "atomic", or "chunked" with
+    one thread per run (`runs`: run starts followed by N)."""
     import warp as wp
 
     from pixie_gs.sim import kernels
@@ -168,7 +175,8 @@ def scatter(sim: MPMSolver, kernel: str, chunk: int = 1) -> tuple[np.ndarray, ..
     if kernel == "atomic":
         wp.launch(kernels.p2g, dim=sim.n, device=d, inputs=inputs + out)
     else:
-        wp.launch(kernels.p2g_chunked, dim=-(-sim.n // chunk), device=d, inputs=inputs + [sim.n, chunk] + out)
+        starts = wp.array(np.asarray(runs, np.int32), dtype=wp.int32, device=d)
+        wp.launch(kernels.p2g_chunked, dim=len(runs) - 1, device=d, inputs=inputs + [starts] + out)
     return tuple(a.numpy() for a in out)
 
 
@@ -180,9 +188,11 @@ def test_chunked_p2g_matches_the_plain_atomic_kernel(device, order):
     sim.C.assign(rng.normal(0.0, 1.0, (sim.n, 3, 3)).astype(np.float32))
     sim.stress.assign(rng.normal(0.0, 100.0, (sim.n, 3, 3)).astype(np.float32))
     reference = scatter(sim, "atomic")
-    # chunks that end inside a cell run, at its end, and chunks that hold many runs
-    for chunk in (1, 4, 8, 13, 64):
-        fast = scatter(sim, "chunked", chunk)
+    # the solver's own cell runs; fixed-size chunks that end inside a cell run, at its end, or
+    # hold many runs; one thread for everything
+    own = sim.run_start.numpy()[:sim.n_runs + 1]
+    for runs in [own] + [np.append(np.arange(0, sim.n, c), sim.n) for c in (1, 8, 13, sim.n)]:
+        fast = scatter(sim, "chunked", runs)
         for a, b in zip(reference, fast):
             assert np.abs(a - b).max() <= 1e-5 * np.abs(a).max()  # summation order only
     # and the independent sums: total mass and momentum are the particles' own

@@ -31,7 +31,9 @@ from .constitutive import NO_YIELD
 from .particles import Particles
 from .reduce import FrameStats, StatsReducer, reference_stats
 from .scene import BOUNDARY_CELLS, Scene
-from .sort import cell_order, permute_in_place
+from .sort import cell_order, cell_runs, chunk_runs, permute_in_place
+
+CHUNK = 8  # particles per P2G thread while the particles are in no cell order (sort_every = 0)
 
 FAR = 1.0e30  # "unbounded" for regions and time windows passed to kernels
 MAX_STRETCH = 1.0e3  # ‖F‖ or 1/J beyond this counts as diverged
@@ -63,8 +65,8 @@ class MPMSolver:
     `sort_every`: re-sort the particle arrays into cell order every this many frames (0: keep
     the caller's order, never sort). Sorted and unsorted runs agree to float rounding.
     The Warp arrays (x, v, F, ...) are in slot order; use the accessors for the caller's order.
-    `p2g`: "chunked" (each thread sums runs of same-cell particles before touching the grid,
-    kernels.p2g_chunked), "atomic" (one global atomic per particle and node, kernels.p2g, the
+    `p2g`: "chunked" (one thread per run of same-cell particles sums them before touching the
+    grid, kernels.p2g_chunked), "atomic" (one global atomic per particle and node, kernels.p2g, the
     plain reference) or "auto" (chunked on a GPU, atomic on the CPU, where it measured faster).
     """
 
@@ -134,6 +136,8 @@ class MPMSolver:
         self.Jp = wp.ones(self.n, dtype=float, device=d)
         self.fixed_flag = wp.array(fixed.astype(np.int32), dtype=wp.int32, device=d)
         self.order = wp.array(np.arange(self.n, dtype=np.int32), dtype=wp.int32, device=d)  # slot → index
+        self.run_start = wp.zeros(self.n + 1, dtype=wp.int32, device=d)  # P2G thread t: run_start[t] ≤ p < [t+1]
+        self.n_runs = chunk_runs(self.n, CHUNK, self.run_start)
         self._order_host: np.ndarray | None = None  # host copy of `order`, None when stale
         self._reducer = StatsReducer(d)
 
@@ -230,8 +234,11 @@ class MPMSolver:
 
     def _resort(self) -> None:
         """Put the particle arrays into grid-cell order (on the device; order follows)."""
-        permute_in_place(cell_order(self.x, self.grid_info), self._particle_arrays())
+        perm, keys = cell_order(self.x, self.grid_info)
+        permute_in_place(perm, self._particle_arrays())
         self._order_host = None
+        self.n_runs = cell_runs(keys, self.run_start)
+        self._p2g_threads()
 
     # ------------------------------------------------------------------ time stepping
     def frame_stats(self, v_limit_mps: float = FAR) -> FrameStats:
@@ -361,9 +368,8 @@ class MPMSolver:
                            self.grid_info, 0.0]
         grid_outputs = [self.grid_mass, self.grid_momentum, self.grid_fixed]
         if self.p2g_kind == "chunked":
-            chunk = kernels.P2G_CHUNK
-            self._p2g = wp.launch(kernels.p2g_chunked, dim=-(-self.n // chunk), device=d, record_cmd=True,
-                                  block_dim=kernels.P2G_CHUNK_BLOCK, inputs=particle_inputs + [self.n, chunk] + grid_outputs)
+            self._p2g = wp.launch(kernels.p2g_chunked, dim=self.n_runs, device=d, record_cmd=True,
+                                  inputs=particle_inputs + [self.run_start] + grid_outputs)
         else:
             self._p2g = wp.launch(kernels.p2g, dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + grid_outputs)
@@ -378,6 +384,11 @@ class MPMSolver:
             inputs=[self.x, self.v, self.C, self.F, self.mu, self.lam, self.yield_stress, self.material,
                     self.Jp, self.fixed_flag, self.grid_info, self.material_params, 0.0, self.grid_velocity,
                     self.stress])
+
+    def _p2g_threads(self) -> None:
+        """The chunked P2G runs one thread per cell run (their number changes with each sort)."""
+        if self.p2g_kind == "chunked":
+            self._p2g.set_dim(self.n_runs)
 
     def _substep(self, dt: float, t: float) -> None:
         timer = self.kernel_timer

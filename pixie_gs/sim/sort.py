@@ -6,11 +6,14 @@ memory traffic and atomic conflicts double; in cell order a warp of threads shar
 The solver keeps its arrays in cell order and a permutation `order` (slot → file index) so
 results still come back in file order. Keys are the linear index of the cell holding the
 particle's stencil base, sorted with Warp's radix sort (stable: ties keep their order).
+The sort also yields the cell runs: where each run of same-cell particles starts, so the chunked
+P2G can give one thread one cell (one set of grid atomics per cell instead of per particle).
 """
 from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 import warp as wp
 
 from .kernels import GridInfo
@@ -36,13 +39,33 @@ def gather(src: wp.array(dtype=Any), perm: wp.array(dtype=wp.int32), dst: wp.arr
     dst[i] = src[perm[i]]
 
 
+@wp.kernel
+def run_heads(keys: wp.array(dtype=wp.int32), max_run: int, head: wp.array(dtype=wp.int32)):
+    """head[i] = 1 where a run starts: a new cell key, or every max_run-th particle (long runs
+    are split so no thread gets a crowded cell alone)."""
+    i = wp.tid()
+    head[i] = 0
+    if i == 0 or keys[i] != keys[i - 1] or i % max_run == 0:
+        head[i] = 1
+
+
+@wp.kernel
+def scatter_run_starts(head: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32),
+                       starts: wp.array(dtype=wp.int32)):
+    """starts[slot[i]] = i for every run head i (slot = exclusive prefix sum of head)."""
+    i = wp.tid()
+    if head[i] != 0:
+        starts[slot[i]] = i
+
+
 for _dtype in (float, wp.int32, wp.vec3, wp.mat33):
     wp.overload(gather, {"src": wp.array(dtype=_dtype), "perm": wp.array(dtype=wp.int32),
                          "dst": wp.array(dtype=_dtype)})
 
 
-def cell_order(x: wp.array, grid: GridInfo) -> wp.array:
-    """Permutation (N,) int32 that puts the particles at positions `x` in cell order (stable)."""
+def cell_order(x: wp.array, grid: GridInfo) -> tuple[wp.array, wp.array]:
+    """(permutation (N,) int32 that puts the particles at positions `x` in cell order (stable),
+    their cell keys in that order (N,) int32)."""
     n = x.shape[0]
     keys = wp.empty(2 * n, dtype=wp.int32, device=x.device)  # the radix sort needs 2N of each
     slots = wp.empty(2 * n, dtype=wp.int32, device=x.device)
@@ -50,7 +73,34 @@ def cell_order(x: wp.array, grid: GridInfo) -> wp.array:
     dims = grid.dims
     bits = max(1, int(dims[0] * dims[1] * dims[2] - 1).bit_length())
     wp.utils.radix_sort_pairs(keys, slots, n, end_bit=bits)
-    return wp.clone(slots[:n])
+    return wp.clone(slots[:n]), wp.clone(keys[:n])
+
+
+MAX_RUN = 64  # particles; a longer same-cell run is split
+
+
+def cell_runs(sorted_keys: wp.array, starts: wp.array, max_run: int = MAX_RUN) -> int:
+    """Write into `starts` (capacity ≥ N+1) where each run of equal keys begins, followed by N;
+    returns the number of runs (one small device→host read)."""
+    n = sorted_keys.shape[0]
+    d = sorted_keys.device
+    head = wp.empty(n, dtype=wp.int32, device=d)
+    slot = wp.empty(n, dtype=wp.int32, device=d)
+    wp.launch(run_heads, dim=n, device=d, inputs=[sorted_keys, max_run, head])
+    wp.utils.array_scan(head, slot, inclusive=False)
+    wp.launch(scatter_run_starts, dim=n, device=d, inputs=[head, slot, starts])
+    last = np.concatenate([slot[n - 1:].numpy(), head[n - 1:].numpy()])
+    runs = int(last.sum())
+    starts[runs:runs + 1].assign(np.array([n], np.int32))
+    return runs
+
+
+def chunk_runs(n: int, chunk: int, starts: wp.array) -> int:
+    """Runs of `chunk` consecutive particles (for particles in no particular order); returns the
+    number of runs."""
+    heads = np.arange(0, n, chunk, dtype=np.int32)
+    starts[:len(heads) + 1].assign(np.append(heads, np.int32(n)))
+    return len(heads)
 
 
 def permute_in_place(perm: wp.array, arrays: list[wp.array]) -> None:
