@@ -78,9 +78,10 @@ def render_modes(cloud, cam: Camera, modes: list[str], device: str = "cpu",
     images = render_many(g, cam, [mode_colours(cloud, mode) for mode in modes], background=background)
     out = []
     for image in images:
-        if not bool(image.isfinite().all()):
+        arr = image.detach().cpu().numpy()  # checked in numpy: torch's threads crawl on a busy CPU
+        if not np.isfinite(arr).all():
             raise InputError("rendering gave non-finite pixels (NaN or inf in the Gaussians)", cloud.source)
-        out.append(to_uint8(image))
+        out.append(to_uint8(arr))
     return out
 
 
