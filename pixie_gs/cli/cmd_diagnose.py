@@ -35,6 +35,14 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--max-particles", type=int, default=3000, metavar="N",
                    help="fit on a reduced model of at most N Gaussians (coarser grid), delta-corrected (3000)")
     p.add_argument("--max-evals", type=int, default=10, metavar="N", help="simulations per candidate effect (10)")
+    p.add_argument("--units", choices=("mm", "cm", "m"),
+                   help="unit of MEASURED.npz's coordinates when the splat's are metres (default: the splat's own)")
+    p.add_argument("--grid", type=int, metavar="N",
+                   help="simulate on N cells along the domain's longest side (overrides the scene's domain.grid)")
+    p.add_argument("--no-floor", action="store_true",
+                   help="skip the solver-error floor (only for tracks made by this very solver at this grid)")
+    p.add_argument("--no-checks", action="store_true",
+                   help="skip registration, start-time offset and outlier-track checks")
     p.add_argument("--no-rrd", action="store_true", help="skip the rerun recording")
     p.add_argument("--verify-written", action="store_true",
                    help="re-simulate the improved model once more from the files written to DIR")
@@ -88,7 +96,16 @@ def run(args: argparse.Namespace) -> int:
     cloud = read_splat(args.model)
     _material_arrays(cloud)
     scene = Scene.from_json(args.scene) if args.scene else Scene.preset("drop")
+    if args.grid is not None:
+        if args.grid < 8:
+            raise InputError(f"--grid must be ≥ 8, got {args.grid}")
+        scene.domain.grid = args.grid
     tracks = load_measured(args.measured, cloud)
+    if not args.no_checks:  # units, registration and match distances: fail before any output exists
+        from ..diagnose.checks import check_geometry
+        from ..diagnose.pipeline import working_cloud
+
+        check_geometry(tracks, working_cloud(cloud)[0], args.units)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError("exists and is not a directory", out)
@@ -98,7 +115,8 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"already holds a diagnosis ({clash[0]}); use --force to overwrite", out)
     out.mkdir(parents=True, exist_ok=True)
     options = DiagnoseOptions(effects=effects, max_effects=args.max_effects, max_evals=args.max_evals,
-                              fidelity=Fidelity(max_particles=args.max_particles), fill=args.fill)
+                              fidelity=Fidelity(max_particles=args.max_particles), fill=args.fill,
+                              checks=not args.no_checks, units=args.units, solver_floor=not args.no_floor)
     stage(f"diagnosing {args.model} against {tracks.num_points} tracked points × {tracks.num_frames} frames")
     result_diag = diagnose(cloud, scene, tracks, device=args.device, options=options)
     # write everything into a private folder first, then move the finished files into DIR
@@ -121,7 +139,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({k: summary[k] for k in ("effect", "part", "params", "gap_before", "gap_after",
                                                   "gap_reduction", "ranking", "chain", "noise_sigma",
-                                                  "simulations", "seconds", "files")}))
+                                                  "converged", "status", "ambiguous_with", "floor",
+                                                  "registration", "note", "simulations", "seconds", "files")}))
     else:
         print_summary(summary)
     return 0
@@ -129,14 +148,26 @@ def run(args: argparse.Namespace) -> int:
 
 def print_summary(s: dict) -> None:
     """Human-readable result on stdout."""
-    if s["effect"] is None:
-        print("nothing significant is missing: no candidate effect explains the gap beyond tracking noise")
+    for w in (s.get("registration") or {}).get("warnings", []):
+        print(f"check: {w}")
+    if not s["converged"]:
+        print(s["status"])
+    elif s["effect"] is None:
+        print("nothing significant is missing: no candidate effect explains the gap beyond tracking noise "
+              "and solver error")
     for i, step in enumerate(s["chain"], 1):
         part = f" of part {step['part']}" if step["part"] is not None else ""
         params = ", ".join(f"{k}={v:.4g}" for k, v in step["params"].items())
         print(f"missing effect {i}: {step['effect']}{part} ({params}); ΔBIC {step['delta_bic']:.1f}")
+    if s["ambiguous_with"]:
+        print(s["status"])
+    fl = s.get("floor")
+    floor = f"; solver-error floor {fl['rms']:.3g} (grid {fl['grid']} vs {fl['fine_grid']}, {fl['coarse_grid']})" \
+        if fl and fl["enabled"] else ""
     print(f"RMS gap {s['gap_before']:.4g} → {s['gap_after']:.4g} "
-          f"({100 * s['gap_reduction']:.0f}% smaller); tracking noise σ ≈ {s['noise_sigma']:.2g}")
+          f"({100 * s['gap_reduction']:.0f}% smaller); tracking noise σ ≈ {s['noise_sigma']:.2g}{floor}")
+    if s.get("note"):
+        print(f"note: {s['note']}")
     print("ranking (round 1, ΔBIC vs the model as given):")
     for r in s["ranking"]:
         part = f"[part {r['part']}]" if r["part"] is not None else ""

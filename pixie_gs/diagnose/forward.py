@@ -91,8 +91,15 @@ class ForwardModel:
         return self.keep is not None
 
     # ------------------------------------------------------------------ simulation
+    def _key(self, cloud: SplatCloud, scene) -> tuple:
+        return (self._context, len(cloud), json.dumps(scene.to_dict(), sort_keys=True), _cloud_digest(cloud))
+
+    def prime(self, scene, cloud: SplatCloud, prediction: np.ndarray) -> None:
+        """Store an already simulated full-model prediction (T,M,3) of (scene, cloud) in the cache."""
+        self.cache[self._key(cloud, scene)] = np.asarray(prediction, np.float64)
+
     def _run(self, cloud: SplatCloud, scene, ids: np.ndarray) -> np.ndarray:
-        key = (self._context, len(cloud), json.dumps(scene.to_dict(), sort_keys=True), _cloud_digest(cloud))
+        key = self._key(cloud, scene)
         if key in self.cache:
             self.cache_hits += 1
             return self.cache[key]

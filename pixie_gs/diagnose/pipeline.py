@@ -21,8 +21,15 @@ from .effects import Effect, get_effect, registry
 from .fit import Candidate, Problem, drop_predictions, make_candidates, predict_linear, refine, screen, verify
 from .forward import Fidelity, ForwardModel
 from .locate import Location, locate, residuals, rms_gap, spatial_clusters
+from .ambiguity import ambiguous_with
+from .checks import Registration, check_geometry, fit_time_offset, outlier_tracks
+from .floor import SolverFloor, estimate_floor
 from .measured import MeasuredTracks
 from .score import BIC_THRESHOLD, MIN_EXCESS_EXPLAINED, Scored, rank, score_candidate
+
+
+OFFSET_SEARCH_FRAMES = 3.0      # start-time offsets searched: ± this many frames
+OFFSET_MAX_LOSS_RATIO = 0.3     # an applied offset must cut the early frames' Huber loss by 70 %
 
 
 @dataclass
@@ -34,12 +41,17 @@ class DiagnoseOptions:
     max_parts: int = 3                    # per-part effects are tried on the worst this-many parts
     verify_top: int = 4                   # candidates simulated at their linear prediction
     refine_top: int = 2                   # candidates refined to `max_evals` runs
+    refine_max: int = 4                   # ... plus close rivals (within refine_within × the best SSE)
+    refine_within: float = 4.0
     max_evals: int = 10                   # runs per candidate (screen + verify + refine)
     min_refine_explained: float = 0.1     # refine only candidates explaining this share of the excess gap
     bic_threshold: float = BIC_THRESHOLD
     min_excess_explained: float = MIN_EXCESS_EXPLAINED
     fidelity: Fidelity = field(default_factory=Fidelity)
     fill: bool = False                    # fill closed objects' interiors (as `pixie simulate --fill`)
+    checks: bool = True                   # units, registration, start-time offset, outlier tracks (checks.py)
+    units: str | None = None              # unit of the measured coordinates (mm|cm|m; None: the splat's)
+    solver_floor: bool = True             # estimate the solver-error floor (floor.py) and use it in the score
 
 
 @dataclass
@@ -68,6 +80,13 @@ class Diagnosis:
     sim_seconds: float
     cache_hits: int
     parts_from_materials: bool = False
+    registration: Registration | None = None
+    floor: SolverFloor | None = None
+    ambiguous: list[Scored] = field(default_factory=list)
+
+    @property
+    def converged(self) -> bool:
+        return self.floor is None or self.floor.converged
 
     @property
     def gap_before(self) -> float:
@@ -131,6 +150,7 @@ class _Runner:
         self.options = options
         self.effects = effects
         self.sigma = float("inf")
+        self.floor_c = 0.0                       # solver-error floor per coordinate (floor.py)
         self.original_sse: float | None = None  # SSE of the model as given (set in round 1)
 
     def score(self, problem: Problem, cand: Candidate, labels: dict, n: int) -> Scored | None:
@@ -139,7 +159,7 @@ class _Runner:
             return None
         s = score_candidate(cand.effect.name, cand.part, dict(best.values), len(cand.params), best.sse,
                             problem.base_sse, n, self.sigma, cand.runs, self.options.bic_threshold,
-                            self.options.min_excess_explained, self.original_sse)
+                            self.options.min_excess_explained, self.original_sse, floor_sigma=self.floor_c)
         if best.pred is not None:
             s.evidence = evidence(problem, best.pred, labels, self.tracks.t)
         return s
@@ -147,7 +167,7 @@ class _Runner:
     def excess_share(self, problem: Problem, sse: float | None, n: int) -> float:
         if sse is None or not np.isfinite(sse):
             return 0.0
-        excess = max(problem.base_sse - n * self.sigma ** 2, 1e-300)
+        excess = max(problem.base_sse - n * (self.sigma ** 2 + self.floor_c ** 2), 1e-300)
         return (problem.base_sse - sse) / excess
 
     def run_round(self, index: int, problem: Problem, cloud: SplatCloud, scene,
@@ -196,7 +216,12 @@ class _Runner:
         for cand in progress(cands[: opts.verify_top], desc=f"verify (round {index})", unit="cand"):
             verify(problem, cand)
         cands.sort(key=lambda c: c.best.sse if c.best else float("inf"))
-        promising = [c for c in cands[: opts.refine_top]
+        # the top `refine_top`, plus runner-ups whose verified fit is within REFINE_WITHIN × the best
+        # SSE (up to `refine_max`): an ambiguity verdict needs every close rival fitted as well
+        best_sse = cands[0].best.sse if cands and cands[0].best else float("inf")
+        close = [c for c in cands[opts.refine_top: opts.refine_max]
+                 if c.best is not None and c.best.sse <= opts.refine_within * best_sse]
+        promising = [c for c in cands[: opts.refine_top] + close
                      if c.best is not None and c.best.sse < problem.base_sse
                      and score_candidate(c.effect.name, c.part, {}, len(c.params), c.best.sse, problem.base_sse,
                                          n, self.sigma).delta_bic > 0
@@ -230,13 +255,36 @@ def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "au
     if not effects:
         raise InputError("no candidate effects to test")
     work, from_materials = working_cloud(cloud)
+    registration = None
+    primed = None
+    if options.checks:
+        tracks, registration, primed = prepare_tracks(tracks, work, scene, device, options)
     model = ForwardModel(work, tracks, device=device, fill=options.fill, fidelity=options.fidelity, cache=cache)
+    if primed is not None:
+        model.prime(scene, work, primed)
     if model.is_reduced:
         stage(f"fitting on a reduced model: {len(model.keep)} of {len(work)} Gaussians, "
               f"grid × {model.grid_scale:g} (delta-corrected against the full model)")
     runner = _Runner(model, tracks, options, effects)
     stage("simulating the model as given")
     base_pred = model.set_baseline(scene, work)
+    stage(f"solver-error floor: re-running the model as given on a finer grid" if options.solver_floor else
+          "solver-error floor: off")
+    floor = estimate_floor(model, scene, work, base_pred, tracks, enabled=options.solver_floor)
+    runner.floor_c = floor.per_coordinate
+    if floor.enabled:
+        stage(f"solver-error floor {floor.rms:.3g} (grid {floor.grid} vs {floor.fine_grid}, {floor.coarse_grid}) next to the gap "
+              f"{floor.gap_rms:.3g} (splat units)")
+    if floor.enabled and floor.converged and floor.gap_rms < 4.0 * floor.rms:
+        stage(f"warning: the gap is only {floor.gap_rms / floor.rms:.1f}× the solver-error floor; "
+              f"a finer grid (--grid {floor.suggested_grid()}) would make the diagnosis firmer")
+    if not floor.converged:
+        stage(floor.message())
+        r0 = residuals(tracks.x, base_pred, tracks.visible)
+        loc = locate(r0, tracks.visible, work, tracks.ids)
+        rnd = RoundResult(1, float(np.sum(r0 ** 2)), loc.rms, loc, [], None)
+        return Diagnosis([rnd], [], copy.deepcopy(scene), work, tracks, base_pred, base_pred, loc.noise_sigma,
+                         model.runs, model.seconds, model.cache_hits, from_materials, registration, floor)
     cur_scene, cur_cloud, cur_pred = scene, work, base_pred
     rounds: list[RoundResult] = []
     accepted: list[Scored] = []
@@ -269,8 +317,71 @@ def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "au
         previous = [c for c in (previous or []) if (c.effect.name, c.part) not in by_key] + cands
         if len(accepted) >= options.max_effects:
             break
+    ambiguous: list[Scored] = []
+    if rounds and rounds[0].ranking and rounds[0].chosen is not None:
+        ambiguous = ambiguous_with(rounds[0].ranking, tracks.num_observations, tracks.num_frames, runner.floor_c)
+        if ambiguous:
+            stage(f"{rounds[0].chosen.label} is indistinguishable on these data from "
+                  f"{', '.join(a.label for a in ambiguous)}")
     return Diagnosis(rounds, accepted, copy.deepcopy(cur_scene), cur_cloud, tracks, base_pred, cur_pred,
-                     runner.sigma, model.runs, model.seconds, model.cache_hits, from_materials)
+                     runner.sigma, model.runs, model.seconds, model.cache_hits, from_materials, registration,
+                     floor, ambiguous)
+
+
+def prepare_tracks(tracks: MeasuredTracks, cloud: SplatCloud, scene, device: str, options: DiagnoseOptions
+                   ) -> tuple[MeasuredTracks, Registration, np.ndarray]:
+    """Registration and sanity before physics (checks.py): units, rigid registration at t₀, match
+    distances; then, from ONE simulation of the model as given, the start-time offset and the
+    outlier tracks → (checked tracks, what was found, their baseline prediction for the cache)."""
+    from ..progress import is_quiet, set_quiet
+    from ..sim.run import simulate
+    from .forward import sample_at, sim_schedule
+    from .locate import noise_sigma
+
+    tracks, reg = check_geometry(tracks, cloud, options.units)
+    frames, fps = sim_schedule(tracks.t)
+    quiet = is_quiet()
+    set_quiet(True)
+    try:
+        stage("checks: simulating the model as given for the start-time offset and outlier tracks")
+        traj = simulate(cloud, scene, frames + 4, fps, device=device, fill=options.fill)
+    finally:
+        set_quiet(quiet)
+    xs = traj.x[:, tracks.ids].astype(np.float64)
+    delta, loss_best, loss_zero = fit_time_offset(xs, fps, tracks.x, tracks.visible, tracks.t,
+                                                  max_frames=OFFSET_SEARCH_FRAMES)
+    reg.time_offset_s = float(delta)
+    # a clock offset is a pure time shift: it must explain most of the early misfit, and a best
+    # shift at the edge of the search (±3 frames) is a missing effect (e.g. an anchored part that
+    # never moves looks like a late release), not a clock
+    at_edge = abs(delta) * fps > OFFSET_SEARCH_FRAMES - 0.3
+    if abs(delta) * fps >= 0.5 and loss_best < OFFSET_MAX_LOSS_RATIO * loss_zero and not at_edge:
+        t_new = tracks.t - delta
+        tracks = MeasuredTracks(t_new, tracks.x, tracks.visible, tracks.ids, tracks.match_distance, tracks.source)
+        reg.time_offset_applied = True
+        reg.warnings.append(f"start-time offset {delta:+.4f} s ({delta * fps:+.2f} frames) fitted on the early "
+                            "frames and applied: simulation time = measured time − offset")
+        stage(reg.warnings[-1])
+    pred = sample_at(xs, fps, tracks.t)
+    r = residuals(tracks.x, pred, tracks.visible)
+    part = cloud.get("part_id")[tracks.ids]
+    bad, z = outlier_tracks(r, tracks.visible, cloud.means[tracks.ids].astype(np.float64), part,
+                            noise_sigma(r, tracks.visible))
+    if bad.any() and (~bad).sum() >= 10:
+        reg.outliers = [{"track": int(m), "gaussian": int(tracks.ids[m]), "z": round(float(z[m]), 1)}
+                        for m in np.nonzero(bad)[0]]
+        reg.warnings.append(f"{int(bad.sum())} outlier track(s) left out (their residual departs from their "
+                            f"neighbours'): {[o['track'] for o in reg.outliers]}")
+        stage(reg.warnings[-1])
+        keep = np.nonzero(~bad)[0]
+        tracks = tracks.subset_points(keep)
+        pred = pred[:, keep]
+    # the baseline the forward model would compute: same schedule, same sampling
+    f_model, fps_model = sim_schedule(tracks.t)
+    primed = sample_at(xs[:f_model], fps_model, tracks.t) if abs(fps_model - fps) < 1e-9 else None
+    if primed is not None and bad.any() and (~bad).sum() >= 10:
+        primed = primed[:, np.nonzero(~bad)[0]]
+    return tracks, reg, primed
 
 
 def _polish_on_full_model(runner: _Runner, problem: Problem, winner: Candidate, chosen: Scored,
@@ -311,7 +422,7 @@ def _polish_on_full_model(runner: _Runner, problem: Problem, winner: Candidate, 
     rescored = score_candidate(chosen.effect, chosen.part, dict(chosen.params), chosen.num_params, sse1,
                                problem.base_sse, n, runner.sigma, chosen.evaluations,
                                runner.options.bic_threshold, runner.options.min_excess_explained,
-                               runner.original_sse)
+                               runner.original_sse, floor_sigma=runner.floor_c)
     rescored.evidence = evidence(problem, pred1, {"part": problem.cloud.get("part_id")[runner.tracks.ids]},
                                  runner.tracks.t)
     rescored.significant = chosen.significant

@@ -21,6 +21,7 @@ from ..atomic import atomic_path
 from ..splat import SplatCloud
 from .locate import per_frame_rms, residuals, rms_gap, spatial_clusters
 from .measured import MeasuredTracks
+from .ambiguity import separation_hint
 from .pipeline import Diagnosis
 
 
@@ -114,12 +115,46 @@ def summary(diagnosis: Diagnosis, gap_before: float, gap_after: float, regions: 
                      "explained": s.explained, "significant": s.significant,
                      "params": {k: float(v) for k, v in s.params.items()}} for s in ranking],
         "noise_sigma": diagnosis.noise_sigma,
+        "converged": diagnosis.converged,
+        "status": status(diagnosis),
+        "ambiguous_with": [{"effect": s.effect, "part": s.part, "score": s.delta_bic,
+                            "params": {k: float(v) for k, v in s.params.items()},
+                            "separate_by": separation_hint(first.effect, s.effect)}
+                           for s in diagnosis.ambiguous] if first else [],
+        "floor": diagnosis.floor.to_dict() if diagnosis.floor is not None else None,
+        "registration": diagnosis.registration.to_dict() if diagnosis.registration is not None else None,
+        "note": effective_note(diagnosis),
         "regions": regions,
         "simulations": diagnosis.runs,
         "simulation_seconds": diagnosis.sim_seconds,
         "seconds": seconds,
         "files": files,
     }
+
+
+def status(diagnosis: Diagnosis) -> str:
+    """One line: what the diagnosis concluded (named / ambiguous / nothing / not converged)."""
+    if not diagnosis.converged:
+        return diagnosis.floor.message()
+    first = diagnosis.effect
+    if first is None:
+        return "nothing significant is missing: no candidate effect explains the gap beyond noise and solver error"
+    if diagnosis.ambiguous:
+        others = ", ".join(s.label for s in diagnosis.ambiguous)
+        hints = "; ".join(f"{s.label}: {separation_hint(first.effect, s.effect)}" for s in diagnosis.ambiguous)
+        return (f"{first.label} fits best but is indistinguishable on these data from {others} "
+                f"(to separate them — {hints})")
+    return f"missing effect: {first.label}"
+
+
+def effective_note(diagnosis: Diagnosis) -> str | None:
+    """Fitted parameter values are effective for this solver and resolution, not material constants."""
+    if diagnosis.effect is None:
+        return None
+    fl = diagnosis.floor
+    where = f" at dx = {100 * fl.dx_m:.3g} cm (grid {fl.grid})" if fl is not None else ""
+    return (f"fitted values are effective for this solver{where}: they make this simulation match the "
+            "measurement and absorb part of its discretisation error; they are not measured material constants")
 
 
 def details(diagnosis: Diagnosis) -> dict:

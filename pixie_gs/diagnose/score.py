@@ -74,8 +74,13 @@ def score_candidate(effect: str, part: int | None, params: dict, num_params: int
                     baseline_sse: float, n: int, noise_sigma: float, evaluations: int = 0,
                     bic_threshold: float = BIC_THRESHOLD,
                     min_excess_explained: float = MIN_EXCESS_EXPLAINED,
-                    original_sse: float | None = None) -> Scored:
+                    original_sse: float | None = None, floor_sigma: float = 0.0,
+                    floor_factor: float = 2.0) -> Scored:
     """Score one fitted candidate against the baseline (current model) residual.
+
+    `floor_sigma` (units, per coordinate) is the solver-error floor (floor.py): it is part of
+    the noise model (the above-noise gap is SSE − n(σ² + f²)), and a significant candidate must
+    remove more than `floor_factor`·n·f² of squared gap — more than solver error could fake.
 
     In a chain (round ≥ 2) `original_sse` is the first model's SSE: a further effect must also
     remove `MIN_ORIGINAL_SHARE` of the ORIGINAL above-noise gap, so that it cannot merely mop up
@@ -85,11 +90,13 @@ def score_candidate(effect: str, part: int | None, params: dict, num_params: int
     cand_bic = bic(sse, n, num_params)
     delta = base_bic - cand_bic
     explained = 1.0 - sse / baseline_sse if baseline_sse > 0 else 0.0
-    excess = max(baseline_sse - n * noise_sigma ** 2, 0.0)
+    noise2 = noise_sigma ** 2 + floor_sigma ** 2
+    excess = max(baseline_sse - n * noise2, 0.0)
     excess_explained = (baseline_sse - sse) / excess if excess > 0 else 0.0
-    significant = bool(delta > bic_threshold and excess_explained >= min_excess_explained)
+    significant = bool(delta > bic_threshold and excess_explained >= min_excess_explained
+                       and baseline_sse - sse > floor_factor * n * floor_sigma ** 2)
     if original_sse is not None and original_sse > baseline_sse:
-        original_excess = max(original_sse - n * noise_sigma ** 2, 1e-300)
+        original_excess = max(original_sse - n * noise2, 1e-300)
         significant = significant and (baseline_sse - sse) / original_excess >= MIN_ORIGINAL_SHARE
     return Scored(effect, part, params, num_params, sse, float(np.sqrt(3.0 * sse / n)), cand_bic,
                   aic(sse, n, num_params), float(delta), float(explained), float(excess_explained),

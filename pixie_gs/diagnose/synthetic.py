@@ -97,3 +97,67 @@ HIDDEN_EFFECTS: list[tuple[str, int | None, dict[str, float], dict[str, float]]]
     ("plastic_yield", 0, {"yield_stress_pa": 40.0}, {"yield_stress_pa": 15.0}),
     ("anchored_part", 0, {}, {}),
 ]
+
+
+# ---------------------------------------------------------------- independent-engine test bed
+def independent_toss_scene(grid: int = 80):
+    """The scene of the independent-engine fixtures (scripts/make_independent_tracks.py): the
+    two-part block, 0.3 m, bottom centre at (−0.15, 0, 0.1) m, tossed at (1.2, 0, 0.8) m/s onto
+    ground with μ = 0.3, in a 2 m domain (large enough that it never reaches a wall; grid 80:
+    dx = 2.5 cm)."""
+    from ..sim.scene import Scene
+
+    return Scene.from_dict({
+        "object": {"size_m": 0.3, "position": [-0.15, 0.0, 0.1]},
+        "domain": {"size_m": 2.0, "grid": grid},
+        "ground": {"friction": 0.3},
+        "impulses": [{"time_s": 0.0, "velocity_change": [1.2, 0.0, 0.8]}],
+    })
+
+
+def in_millimetres(x: np.ndarray) -> np.ndarray:
+    """Tracks as a tracker reporting millimetres would write them (splat units taken as metres)."""
+    return np.asarray(x, np.float64) * 1000.0
+
+
+def start_late(t: np.ndarray, x: np.ndarray, frames: int = 1, noise: float = 1e-3, seed: int = 0
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """The camera started `frames` frames before the release: rest-pose frames are prepended and
+    the measured clock runs `frames`/fps ahead of the simulation's (release at t = frames/fps)."""
+    rng = np.random.default_rng(seed)
+    dt = float(np.median(np.diff(t)))
+    rest = x[:1] + rng.normal(0.0, noise, (frames,) + x.shape[1:])
+    return np.arange(len(t) + frames) * dt, np.concatenate([rest, x])
+
+
+def add_outlier_tracks(x: np.ndarray, fraction: float = 0.05, seed: int = 0, jump: float = 0.05
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Corrupt `fraction` of the tracks as trackers do: half get stuck on the background (stay
+    where they were from a random frame on), half jump by `jump`–2·`jump` units to a wrong point.
+    Returns (tracks, indices of the corrupted tracks)."""
+    rng = np.random.default_rng(seed)
+    x = np.array(x, np.float64)
+    T, M = x.shape[:2]
+    bad = np.sort(rng.choice(M, max(1, int(round(fraction * M))), replace=False))
+    for j, m in enumerate(bad):
+        f = int(rng.integers(2, max(3, T // 2)))
+        if j % 2 == 0:
+            x[f:, m] = x[f, m]
+        else:
+            direction = rng.normal(size=3)
+            x[f:, m] += direction / np.linalg.norm(direction) * jump * rng.uniform(1.0, 2.0)
+    return x, bad
+
+
+def occlude(x: np.ndarray, fraction: float = 0.2, seed: int = 0) -> np.ndarray:
+    """Visibility mask (T,M) with `fraction` of the (frame, point) observations lost in runs of a
+    few frames (a tracker losing points behind the object); the first frame stays visible."""
+    rng = np.random.default_rng(seed)
+    T, M = x.shape[:2]
+    vis = np.ones((T, M), bool)
+    target = int(round(fraction * T * M))
+    while (~vis).sum() < target:
+        m = int(rng.integers(M))
+        f = int(rng.integers(1, T))
+        vis[f:f + int(rng.integers(2, 6)), m] = False
+    return vis
