@@ -9,7 +9,7 @@ divergence guard and any re-sort are all inside the timed figure). Figures print
 - particle order (`--order`, several allowed): `lattice` = the block as generated, solver sorting
   off (the best case); `random` = particles shuffled (what a splat file gives), solver sorting
   off; `sorted` = particles shuffled, the solver keeps them in grid-cell order (its default,
-  re-sorted every 4 frames);
+  re-sorted at the start of every frame);
 - particle-substeps/s = particles × substeps / seconds;
 - per-kernel split (P2G, grid update, G2P) per substep, from a second, instrumented frame (CUDA
   events after each kernel; on the CPU, where launches are synchronous, wall clock), and the
@@ -125,7 +125,8 @@ def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str
 
     particles, scene = block_problem(n_target, shuffle=order != "lattice")
     n = len(particles)
-    solver = MPMSolver(particles, scene, device, sort_every=4 if order == "sorted" else 0, p2g=p2g)
+    sort = {} if order == "sorted" else {"sort_every": 0}  # sorted: the solver's default (every frame)
+    solver = MPMSolver(particles, scene, device, p2g=p2g, **sort)
     dt = float(solver.dt)
     # step_frame(k·dt) runs k substeps of the CFL dt (the solver's own counter says how many)
     solver.step_frame(warmup * dt * (1 - 1e-6))

@@ -162,9 +162,9 @@ def test_sorted_and_unsorted_runs_agree(device):
     assert np.abs(F0 - F1)[snow].max() < 5e-4
 
 
-def scatter(sim: MPMSolver, kernel: str, runs: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+def scatter(sim: MPMSolver, kernel: str, runs: np.ndarray | None = None, interleave: int = 1) -> tuple[np.ndarray, ...]:
     """(grid mass, momentum, fixed weight) after one P2G of `kernel`: "atomic", or "chunked" with
-    one thread per run (`runs`: run starts followed by N)."""
+    one thread per run (`runs`: run starts followed by N; lanes `interleave` runs apart)."""
     import warp as wp
 
     from pixie_gs.sim import kernels
@@ -176,7 +176,10 @@ def scatter(sim: MPMSolver, kernel: str, runs: np.ndarray | None = None) -> tupl
         wp.launch(kernels.p2g, dim=sim.n, device=d, inputs=inputs + out)
     else:
         starts = wp.array(np.asarray(runs, np.int32), dtype=wp.int32, device=d)
-        wp.launch(kernels.p2g_chunked, dim=len(runs) - 1, device=d, inputs=inputs + [starts] + out)
+        n_runs = len(runs) - 1
+        group = 32 * interleave
+        wp.launch(kernels.p2g_chunked, dim=-(-n_runs // group) * group, device=d,
+                  inputs=inputs + [starts, n_runs, interleave] + out)
     return tuple(a.numpy() for a in out)
 
 
@@ -191,8 +194,9 @@ def test_chunked_p2g_matches_the_plain_atomic_kernel(device, order):
     # the solver's own cell runs; fixed-size chunks that end inside a cell run, at its end, or
     # hold many runs; one thread for everything
     own = sim.run_start.numpy()[:sim.n_runs + 1]
-    for runs in [own] + [np.append(np.arange(0, sim.n, c), sim.n) for c in (1, 8, 13, sim.n)]:
-        fast = scatter(sim, "chunked", runs)
+    cases = [(own, 1), (own, 3)] + [(np.append(np.arange(0, sim.n, c), sim.n), 2) for c in (1, 8, 13, sim.n)]
+    for runs, interleave in cases:
+        fast = scatter(sim, "chunked", runs, interleave)
         for a, b in zip(reference, fast):
             assert np.abs(a - b).max() <= 1e-5 * np.abs(a).max()  # summation order only
     # and the independent sums: total mass and momentum are the particles' own

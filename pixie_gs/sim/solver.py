@@ -70,7 +70,7 @@ class MPMSolver:
     plain reference) or "auto" (chunked on a GPU, atomic on the CPU, where it measured faster).
     """
 
-    def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int = 4,
+    def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int = 1,
                  p2g: str = "auto") -> None:
         particles.validate()
         self.scene = scene
@@ -368,8 +368,9 @@ class MPMSolver:
                            self.grid_info, 0.0]
         grid_outputs = [self.grid_mass, self.grid_momentum, self.grid_fixed]
         if self.p2g_kind == "chunked":
-            self._p2g = wp.launch(kernels.p2g_chunked, dim=self.n_runs, device=d, record_cmd=True,
-                                  inputs=particle_inputs + [self.run_start] + grid_outputs)
+            self._p2g = wp.launch(kernels.p2g_chunked, dim=1, device=d, record_cmd=True,
+                                  inputs=particle_inputs + [self.run_start, 0, kernels.P2G_INTERLEAVE] + grid_outputs)
+            self._p2g_threads()
         else:
             self._p2g = wp.launch(kernels.p2g, dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + grid_outputs)
@@ -388,7 +389,9 @@ class MPMSolver:
     def _p2g_threads(self) -> None:
         """The chunked P2G runs one thread per cell run (their number changes with each sort)."""
         if self.p2g_kind == "chunked":
-            self._p2g.set_dim(self.n_runs)
+            group = 32 * kernels.P2G_INTERLEAVE
+            self._p2g.set_dim(-(-self.n_runs // group) * group)
+            self._p2g.set_param_by_name("n_runs", self.n_runs)
 
     def _substep(self, dt: float, t: float) -> None:
         timer = self.kernel_timer
