@@ -189,3 +189,17 @@ def test_modes_render_material_and_log_e_colours():
     np.testing.assert_allclose(colour[12, 12] / 255, 0.99 * np.array([0.2, 0.3, 0.4]), atol=1 / 255)
     np.testing.assert_allclose(material[12, 12] / 255, 0.99 * viz.material_colors(np.array([2]))[0], atol=1 / 255)
     np.testing.assert_allclose(log_e[12, 12] / 255, 0.99 * viz.log_e_colors(np.array([1e6]))[0], atol=1 / 255)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (run on a GPU machine)")
+@pytest.mark.parametrize("backend", ["warp", "torch"])
+def test_cuda_renderer_matches_reference_and_cpu(backend):
+    means, scales, quats, opacities, sh = random_scene(0, 70)
+    cam = look_at([1.8, -1.4, 0.9], [0, 0, 0], [0, 0, 1], 48, 40, fov_y_deg=50)
+    ref = np.clip(reference_render(means, scales, quats, opacities, sh, cam), 0, 1)
+    g = gaussians(means, scales, quats, opacities, sh)
+    cpu = render(g, cam, backend=backend).numpy()
+    g_cuda = Gaussians(*(t.cuda() for t in (g.means, g.scales, g.quats, g.opacities, g.sh)))
+    gpu = render(g_cuda, cam, backend=backend).cpu().numpy()
+    assert np.abs(gpu - ref).mean() < 1 / 255
+    assert np.abs(gpu - cpu).max() < 2 / 255

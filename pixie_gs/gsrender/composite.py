@@ -91,11 +91,14 @@ def composite(ranges: torch.Tensor, order: torch.Tensor, mean2d: torch.Tensor, c
         return wp.from_torch(keep[-1], dtype=dtype)
 
     min_power = torch.log(alpha_min / opacity.clamp(min=1e-30))
-    wp.launch(_composite, dim=(height, width), device=wdev, inputs=[
+    # on CUDA the kernel joins torch's current stream, so it runs after the torch work that made
+    # its inputs and before any torch work that reads its outputs
+    stream = None if wdev == "cpu" else wp.stream_from_torch(torch.cuda.current_stream(dev))
+    wp.launch(_composite, dim=(height, width), device=wdev, stream=stream, inputs=[
         w(ranges, wp.int32), w(order, wp.int32), w(mean2d, wp.vec2), w(conic, wp.vec3),
         w(opacity, wp.float32), w(min_power, wp.float32), w(colours.float(), wp.vec3), int(sets),
         int(tiles_x), int(tile), float(alpha_max), float(alpha_min), float(t_min),
         wp.vec3(*[float(v) for v in background]), w(image, wp.vec3), w(trans, wp.float32)])
-    if wdev != "cpu":
-        wp.synchronize_device(wdev)
+    if stream is not None:
+        wp.synchronize_stream(stream)  # the contiguous copies in `keep` may be freed after this
     return image, trans
