@@ -16,7 +16,13 @@ from .camera import Camera
 
 def real_sh_basis(dirs: np.ndarray, degree: int) -> np.ndarray:
     """(N, (degree+1)²) real SH basis values at unit directions (N,3), 3DGS order and signs."""
-    from scipy.special import sph_harm_y
+    try:
+        from scipy.special import sph_harm_y  # scipy ≥ 1.15
+    except ImportError:  # older scipy: sph_harm(m, l, azimuth, polar)
+        from scipy.special import sph_harm
+
+        def sph_harm_y(l, m, polar, azimuth):
+            return sph_harm(m, l, azimuth, polar)
 
     d = np.asarray(dirs, np.float64)
     theta = np.arccos(np.clip(d[:, 2], -1.0, 1.0))
