@@ -119,7 +119,7 @@ def test_particle_arrays_are_kept_in_cell_order_and_results_in_file_order(device
 def test_cell_order_sorts_like_numpy_argsort(device):
     import warp as wp
 
-    from pixie_gs.sim.sort import cell_order, cell_runs
+    from pixie_gs.sim.sort import cell_order, cell_runs, chunk_runs
 
     scene = scene_for_tests()
     sim = MPMSolver(mixed_block(scene), scene, device, sort_every=0)
@@ -133,11 +133,17 @@ def test_cell_order_sorts_like_numpy_argsort(device):
     assert np.array_equal(keys, key[perm])
     # runs: a new key, or every MAX_RUN-th particle of a long run
     starts = wp.zeros(sim.n + 1, dtype=wp.int32, device=device)
-    count = cell_runs(wp.array(keys, dtype=wp.int32, device=device), starts, max_run=4)
+    counter = wp.zeros(1, dtype=wp.int32, device=device)
+    cell_runs(wp.array(keys, dtype=wp.int32, device=device), starts, counter, max_run=4)
+    count = int(counter.numpy()[0])
     i = np.arange(sim.n)
     heads = i[(i == 0) | (np.r_[0, np.diff(keys)] != 0) | (i % 4 == 0)]
     assert count == len(heads)
     assert np.array_equal(starts.numpy()[:count + 1], np.append(heads, sim.n))
+    # and the runs of the unsorted case: fixed chunks
+    chunk_runs(sim.n, 7, starts, counter)
+    assert int(counter.numpy()[0]) == -(-sim.n // 7)
+    assert np.array_equal(starts.numpy()[:-(-sim.n // 7) + 1], np.append(np.arange(0, sim.n, 7), sim.n))
 
 
 def test_sorted_and_unsorted_runs_agree(device):
@@ -162,9 +168,9 @@ def test_sorted_and_unsorted_runs_agree(device):
     assert np.abs(F0 - F1)[snow].max() < 5e-4
 
 
-def scatter(sim: MPMSolver, kernel: str, runs: np.ndarray | None = None, interleave: int = 1) -> tuple[np.ndarray, ...]:
+def scatter(sim: MPMSolver, kernel: str, runs: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """(grid mass, momentum, fixed weight) after one P2G of `kernel`: "atomic", or "chunked" with
-    one thread per run (`runs`: run starts followed by N; lanes `interleave` runs apart)."""
+    one thread per run (`runs`: run starts followed by N)."""
     import warp as wp
 
     from pixie_gs.sim import kernels
@@ -176,10 +182,8 @@ def scatter(sim: MPMSolver, kernel: str, runs: np.ndarray | None = None, interle
         wp.launch(kernels.p2g, dim=sim.n, device=d, inputs=inputs + out)
     else:
         starts = wp.array(np.asarray(runs, np.int32), dtype=wp.int32, device=d)
-        n_runs = len(runs) - 1
-        group = 32 * interleave
-        wp.launch(kernels.p2g_chunked, dim=-(-n_runs // group) * group, device=d,
-                  inputs=inputs + [starts, n_runs, interleave] + out)
+        count = wp.array([len(runs) - 1], dtype=wp.int32, device=d)
+        wp.launch(kernels.p2g_chunked, dim=sim.n, device=d, inputs=inputs + [starts, count] + out)
     return tuple(a.numpy() for a in out)
 
 
@@ -194,9 +198,8 @@ def test_chunked_p2g_matches_the_plain_atomic_kernel(device, order):
     # the solver's own cell runs; fixed-size chunks that end inside a cell run, at its end, or
     # hold many runs; one thread for everything
     own = sim.run_start.numpy()[:sim.n_runs + 1]
-    cases = [(own, 1), (own, 3)] + [(np.append(np.arange(0, sim.n, c), sim.n), 2) for c in (1, 8, 13, sim.n)]
-    for runs, interleave in cases:
-        fast = scatter(sim, "chunked", runs, interleave)
+    for runs in [own] + [np.append(np.arange(0, sim.n, c), sim.n) for c in (1, 8, 13, sim.n)]:
+        fast = scatter(sim, "chunked", runs)
         for a, b in zip(reference, fast):
             assert np.abs(a - b).max() <= 1e-5 * np.abs(a).max()  # summation order only
     # and the independent sums: total mass and momentum are the particles' own

@@ -66,8 +66,6 @@ def p2g(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtyp
                     wp.atomic_add(grid_fixed, gi, gj, gk, w)
 
 
-P2G_INTERLEAVE = 3  # the 32 lanes of a warp take every 3rd cell run (see p2g_chunked)
-
 stencil_sums = wp.types.matrix(shape=(27, 4), dtype=float)  # per stencil node: momentum xyz, mass
 
 
@@ -89,7 +87,7 @@ def add_stencil_sums(acc: stencil_sums, base: wp.vec3i, grid_mass: wp.array3d(dt
 def p2g_chunked(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33),
                 stress: wp.array(dtype=wp.mat33), volume: wp.array(dtype=float), mass: wp.array(dtype=float),
                 fixed: wp.array(dtype=wp.int32), grid: GridInfo, dt: float, run_start: wp.array(dtype=wp.int32),
-                n_runs: int, interleave: int, grid_mass: wp.array3d(dtype=float), grid_momentum: wp.array3d(dtype=wp.vec3),
+                n_runs: wp.array(dtype=wp.int32), grid_mass: wp.array3d(dtype=float), grid_momentum: wp.array3d(dtype=wp.vec3),
                 grid_fixed: wp.array3d(dtype=float)):
     """P2G of `p2g` for cell-sorted particles: thread t takes the particles
     run_start[t] ≤ p < run_start[t+1] (one cell's run, from the last sort: sort.cell_runs) and
@@ -97,16 +95,12 @@ def p2g_chunked(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.ar
     adding them to the grid only when the base changes — one set of 27 node atomics per cell
     instead of per particle (8× fewer at 8 particles per cell). Correct for any runs and any
     particle order (particles that left their cell since the sort only cost extra atomics).
-    `interleave` = s: the lanes of a warp take runs s apart (lane l of the w-th warp of a group
-    of 32·s runs takes run l·s + w), so their 27-node stencils rarely overlap and their atomics
-    do not queue on the same addresses; launch ceil(n_runs / (32·s))·32·s threads."""
+    The run count n_runs[0] stays on the device: launch N threads, those past it return."""
     t = wp.tid()
-    group = 32 * interleave
-    r = (t // group) * group + (t % 32) * interleave + (t % group) // 32
-    if r >= n_runs:
+    if t >= n_runs[0]:
         return
-    start = run_start[r]
-    end = run_start[r + 1]
+    start = run_start[t]
+    end = run_start[t + 1]
     acc = stencil_sums()
     current = wp.vec3i(-1, -1, -1)
     for p in range(start, end):

@@ -34,6 +34,7 @@ from .scene import BOUNDARY_CELLS, Scene
 from .sort import cell_order, cell_runs, chunk_runs, permute_in_place
 
 CHUNK = 8  # particles per P2G thread while the particles are in no cell order (sort_every = 0)
+SORT_SUBSTEPS = 32  # with sorting on, a long frame re-sorts every this many substeps too
 
 FAR = 1.0e30  # "unbounded" for regions and time windows passed to kernels
 MAX_STRETCH = 1.0e3  # ‖F‖ or 1/J beyond this counts as diverged
@@ -62,8 +63,9 @@ class MPMSolver:
     device to finish the frame), kernel_timer (None, or an object whose mark(name) is called
     after each kernel launch: benchmarks time kernels with it).
     The scene is read once, at construction; build a new solver to change it.
-    `sort_every`: re-sort the particle arrays into cell order every this many frames (0: keep
-    the caller's order, never sort). Sorted and unsorted runs agree to float rounding.
+    `sort_every`: re-sort the particle arrays into cell order every this many frames, and every
+    SORT_SUBSTEPS substeps inside a frame (0: keep the caller's order, never sort). Sorted and
+    unsorted runs agree to float rounding.
     The Warp arrays (x, v, F, ...) are in slot order; use the accessors for the caller's order.
     `p2g`: "chunked" (one thread per run of same-cell particles sums them before touching the
     grid, kernels.p2g_chunked), "atomic" (one global atomic per particle and node, kernels.p2g, the
@@ -137,7 +139,8 @@ class MPMSolver:
         self.fixed_flag = wp.array(fixed.astype(np.int32), dtype=wp.int32, device=d)
         self.order = wp.array(np.arange(self.n, dtype=np.int32), dtype=wp.int32, device=d)  # slot → index
         self.run_start = wp.zeros(self.n + 1, dtype=wp.int32, device=d)  # P2G thread t: run_start[t] ≤ p < [t+1]
-        self.n_runs = chunk_runs(self.n, CHUNK, self.run_start)
+        self.run_count = wp.zeros(1, dtype=wp.int32, device=d)  # runs in run_start (stays on the device)
+        chunk_runs(self.n, CHUNK, self.run_start, self.run_count)
         self._order_host: np.ndarray | None = None  # host copy of `order`, None when stale
         self._reducer = StatsReducer(d)
 
@@ -237,8 +240,12 @@ class MPMSolver:
         perm, keys = cell_order(self.x, self.grid_info)
         permute_in_place(perm, self._particle_arrays())
         self._order_host = None
-        self.n_runs = cell_runs(keys, self.run_start)
-        self._p2g_threads()
+        cell_runs(keys, self.run_start, self.run_count)
+
+    @property
+    def n_runs(self) -> int:
+        """Number of P2G particle runs (cells) since the last sort (reads the device)."""
+        return int(self.run_count.numpy()[0])
 
     # ------------------------------------------------------------------ time stepping
     def frame_stats(self, v_limit_mps: float = FAR) -> FrameStats:
@@ -329,6 +336,8 @@ class MPMSolver:
         self.grid_momentum.zero_()
         self.grid_fixed.zero_()
         for s in range(n_sub):
+            if self.sort_every > 0 and s > 0 and s % SORT_SUBSTEPS == 0:
+                self._resort()  # all on the device: the launches queue behind the substeps
             t = t0 + s * dt
             self._apply_impulses(t + dt)
             self._substep(dt, t)
@@ -368,9 +377,8 @@ class MPMSolver:
                            self.grid_info, 0.0]
         grid_outputs = [self.grid_mass, self.grid_momentum, self.grid_fixed]
         if self.p2g_kind == "chunked":
-            self._p2g = wp.launch(kernels.p2g_chunked, dim=1, device=d, record_cmd=True,
-                                  inputs=particle_inputs + [self.run_start, 0, kernels.P2G_INTERLEAVE] + grid_outputs)
-            self._p2g_threads()
+            self._p2g = wp.launch(kernels.p2g_chunked, dim=self.n, device=d, record_cmd=True,
+                                  inputs=particle_inputs + [self.run_start, self.run_count] + grid_outputs)
         else:
             self._p2g = wp.launch(kernels.p2g, dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + grid_outputs)
@@ -385,13 +393,6 @@ class MPMSolver:
             inputs=[self.x, self.v, self.C, self.F, self.mu, self.lam, self.yield_stress, self.material,
                     self.Jp, self.fixed_flag, self.grid_info, self.material_params, 0.0, self.grid_velocity,
                     self.stress])
-
-    def _p2g_threads(self) -> None:
-        """The chunked P2G runs one thread per cell run (their number changes with each sort)."""
-        if self.p2g_kind == "chunked":
-            group = 32 * kernels.P2G_INTERLEAVE
-            self._p2g.set_dim(-(-self.n_runs // group) * group)
-            self._p2g.set_param_by_name("n_runs", self.n_runs)
 
     def _substep(self, dt: float, t: float) -> None:
         timer = self.kernel_timer

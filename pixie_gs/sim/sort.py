@@ -13,7 +13,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 import warp as wp
 
 from .kernels import GridInfo
@@ -51,11 +50,26 @@ def run_heads(keys: wp.array(dtype=wp.int32), max_run: int, head: wp.array(dtype
 
 @wp.kernel
 def scatter_run_starts(head: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32),
-                       starts: wp.array(dtype=wp.int32)):
-    """starts[slot[i]] = i for every run head i (slot = exclusive prefix sum of head)."""
+                       starts: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32)):
+    """starts[slot[i]] = i for every run head i (slot = exclusive prefix sum of head); the last
+    thread writes the number of runs to count[0] and closes the list with starts[count] = N."""
     i = wp.tid()
     if head[i] != 0:
         starts[slot[i]] = i
+    n = head.shape[0]
+    if i == n - 1:
+        runs = slot[i] + head[i]
+        count[0] = runs
+        starts[runs] = n
+
+
+@wp.kernel
+def chunk_starts(chunk: int, n: int, starts: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32)):
+    """starts[t] = t·chunk (runs of `chunk` consecutive particles), closed by N; count[0] = runs."""
+    t = wp.tid()
+    starts[t] = wp.min(t * chunk, n)
+    if t == 0:
+        count[0] = (n + chunk - 1) // chunk
 
 
 for _dtype in (float, wp.int32, wp.vec3, wp.mat33):
@@ -79,28 +93,22 @@ def cell_order(x: wp.array, grid: GridInfo) -> tuple[wp.array, wp.array]:
 MAX_RUN = 64  # particles; a longer same-cell run is split
 
 
-def cell_runs(sorted_keys: wp.array, starts: wp.array, max_run: int = MAX_RUN) -> int:
-    """Write into `starts` (capacity ≥ N+1) where each run of equal keys begins, followed by N;
-    returns the number of runs (one small device→host read)."""
+def cell_runs(sorted_keys: wp.array, starts: wp.array, count: wp.array, max_run: int = MAX_RUN) -> None:
+    """Write into `starts` (capacity ≥ N+1) where each run of equal keys begins, followed by N,
+    and the number of runs into count[0] — all on the device (nothing is read back)."""
     n = sorted_keys.shape[0]
     d = sorted_keys.device
     head = wp.empty(n, dtype=wp.int32, device=d)
     slot = wp.empty(n, dtype=wp.int32, device=d)
     wp.launch(run_heads, dim=n, device=d, inputs=[sorted_keys, max_run, head])
     wp.utils.array_scan(head, slot, inclusive=False)
-    wp.launch(scatter_run_starts, dim=n, device=d, inputs=[head, slot, starts])
-    last = np.concatenate([slot[n - 1:].numpy(), head[n - 1:].numpy()])
-    runs = int(last.sum())
-    starts[runs:runs + 1].assign(np.array([n], np.int32))
-    return runs
+    wp.launch(scatter_run_starts, dim=n, device=d, inputs=[head, slot, starts, count])
 
 
-def chunk_runs(n: int, chunk: int, starts: wp.array) -> int:
-    """Runs of `chunk` consecutive particles (for particles in no particular order); returns the
-    number of runs."""
-    heads = np.arange(0, n, chunk, dtype=np.int32)
-    starts[:len(heads) + 1].assign(np.append(heads, np.int32(n)))
-    return len(heads)
+def chunk_runs(n: int, chunk: int, starts: wp.array, count: wp.array) -> None:
+    """Runs of `chunk` consecutive particles (for particles in no cell order), as cell_runs."""
+    runs = (n + chunk - 1) // chunk
+    wp.launch(chunk_starts, dim=runs + 1, device=starts.device, inputs=[chunk, n, starts, count])
 
 
 def permute_in_place(perm: wp.array, arrays: list[wp.array]) -> None:
