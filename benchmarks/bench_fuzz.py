@@ -174,7 +174,9 @@ def run_interruptions(work: Path, trials: int, seed: int = 7) -> dict:
                 tally["new whole"] += 1
             else:
                 tally["mixed"] += 1
-            if "Traceback" in err:
+            if "init_import_site" in err or "<frozen site>" in err:
+                tally["python start-up"] += 1  # Ctrl-C inside CPython's own start-up, before any pixie code
+            elif "Traceback" in err:
                 tally["tracebacks"] += 1
             stray = [p.name for p in base.iterdir() if p.name not in ("in.ply", "scene.json", "out", "pristine")]
             stray += [p.name for p in out.iterdir() if p.name.startswith(".")]
@@ -196,7 +198,9 @@ def run_interruptions(work: Path, trials: int, seed: int = 7) -> dict:
         print(f"{name:8s} {tally['old whole']:10d} {tally['new whole']:10d} {tally['mixed']:6d} "
               f"{tally['leftovers']:10d} {tally['tracebacks']:11d} {tally['input changed']:14d}"
               + (f"   (staging folders left by killed runs: {tally['killed-run staging folders']}, all cleared "
-                 f"by the next run)" if sig == signal.SIGKILL else ""))
+                 f"by the next run)" if sig == signal.SIGKILL else "")
+              + (f"   ({tally['python start-up']} landed in CPython's start-up, before any pixie code: its own "
+                 "traceback)" if tally["python start-up"] else ""))
     return {"run_s": run_s, **results}
 
 

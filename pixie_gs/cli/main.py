@@ -49,9 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from ..prepare.updir import fix_negative_up
-
     try:
+        from ..prepare.updir import fix_negative_up
+
         parser = build_parser()  # imports every command module: Ctrl-C may land here
         args = parser.parse_args(fix_negative_up(list(sys.argv[1:] if argv is None else argv)))
     except KeyboardInterrupt:
