@@ -20,8 +20,8 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
         "With a triangle mesh as IN, sample it into flat surface Gaussians coloured from its texture, "
         "vertex or face colours (and, with --fill, isotropic Gaussians inside a closed mesh); scenes are "
         "flattened with their transforms; the same --seed gives identical bytes.",
-        epilog="examples: pixie convert scene.spz scene.ply · pixie convert out.ply out.compressed.ply · "
-        "pixie convert duck.glb duck.ply --count 200000 --fill --seed 1",
+        epilog="example: pixie convert scene.spz scene.ply  (also: pixie convert out.ply out.compressed.ply; "
+        "pixie convert duck.glb duck.ply --count 200000 --fill --seed 1)",
     )
     p.add_argument("mesh", metavar="IN", help="splat (.ply .compressed.ply .splat .spz) or mesh "
                    "(.glb .gltf .obj .ply .stl .off)")
@@ -103,8 +103,13 @@ def convert_splat(args: argparse.Namespace, source_format: str):
     return cloud
 
 
+GLTF_UP_COMMENT = "pixie up 0 1 0"
+
+
 def convert_mesh(args: argparse.Namespace):
     """Sample the mesh IN into a splat written to OUT (format by OUT's name or --format)."""
+    from pathlib import Path
+
     import numpy as np
 
     from ..convert import load_mesh, mesh_to_splat
@@ -122,6 +127,8 @@ def convert_mesh(args: argparse.Namespace):
     stage(f"read {len(mesh.faces)} triangles from {args.mesh}; sampling {count} surface Gaussians"
           + (" and filling the interior" if args.fill else ""))
     cloud = mesh_to_splat(mesh, count, np.random.default_rng(args.seed), fill=args.fill, n_fill=args.fill_count)
+    if Path(args.mesh).suffix.lower() in (".glb", ".gltf"):
+        cloud.comments.append(GLTF_UP_COMMENT)  # the glTF spec defines +Y as up; pixie prepare honours it
     note = lossy_note(cloud, target)
     if note:
         stage(f"lossy: {note}")
