@@ -284,12 +284,12 @@ def test_splat_round_trip_within_quantisation(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------ Niantic .spz
-def plain_spz_v2(points: list[dict], frac: int = 12) -> bytes:
-    """A version-2 .spz packed by hand from the spec (RUB axes, so y and z are negated)."""
-    out = [struct.pack("<IIIBBBB", 0x5053474E, 2, len(points), 0, frac, 0, 0)]
+def plain_spz_v2(points: list[dict], frac: int = 12, version: int = 2) -> bytes:
+    """A version-2 (or 1: float16 positions) .spz packed by hand from the spec (RUB axes: y, z negated)."""
+    out = [struct.pack("<IIIBBBB", 0x5053474E, version, len(points), 0, frac, 0, 0)]
     for p in points:
         for v in (p["xyz"][0], -p["xyz"][1], -p["xyz"][2]):
-            out.append(struct.pack("<i", round(v * (1 << frac)))[:3])
+            out.append(struct.pack("<e", v) if version == 1 else struct.pack("<i", round(v * (1 << frac)))[:3])
     out += [bytes([round(p["alpha"] * 255)]) for p in points]
     out += [bytes(round(c * 0.15 * 255 + 127.5) for c in p["f_dc"]) for p in points]
     out += [bytes(round((s + 10) * 16) for s in p["log_scale"]) for p in points]
@@ -324,8 +324,9 @@ def check_spz_points(cloud: SplatCloud) -> None:
     assert quat_angle(cloud.rotations, np.array([p["wxyz"] for p in SPZ_POINTS])).max() < 0.014
 
 
-def test_spz_v2_written_from_the_spec_reads_back(tmp_path: Path) -> None:
-    (tmp_path / "hand.spz").write_bytes(plain_spz_v2(SPZ_POINTS))
+@pytest.mark.parametrize("version", [1, 2])
+def test_spz_v1_v2_written_from_the_spec_read_back(tmp_path: Path, version: int) -> None:
+    (tmp_path / "hand.spz").write_bytes(plain_spz_v2(SPZ_POINTS, version=version))
     cloud = read_splat(tmp_path / "hand.spz")
     assert cloud.source_format == "spz" and len(cloud) == 2
     check_spz_points(cloud)

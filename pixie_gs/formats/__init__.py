@@ -75,6 +75,11 @@ def _plausible_splat(path: Path, size: int) -> bool:
     return bool(ok.mean() >= 0.99)
 
 
+def _first_bytes(path: Path, n: int) -> bytes:
+    with open(path, "rb") as fh:
+        return fh.read(n)
+
+
 def detect_format(path: str | Path) -> str:
     """The format of the splat file at `path` by its content: one of FORMATS.
 
@@ -102,7 +107,7 @@ def detect_format(path: str | Path) -> str:
                          path)
     if head.startswith(b"glTF"):
         raise InputError("is a glTF binary (mesh), not a splat: use `pixie convert MESH OUT.ply`", path)
-    if head.lstrip().startswith(b"{") and b'"asset"' in open(path, "rb").read(4096):
+    if head.lstrip().startswith(b"{") and b'"asset"' in _first_bytes(path, 4096):
         raise InputError("is a glTF JSON file (mesh), not a splat: use `pixie convert MESH OUT.ply`", path)
     if head.startswith(b"PK\x03\x04"):
         raise InputError("is a zip archive (e.g. PlayCanvas .sog), which pixie-gs does not read; convert it "
