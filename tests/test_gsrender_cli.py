@@ -83,3 +83,17 @@ def test_render_errors_are_one_line_and_leave_nothing(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert message in err and len(err.splitlines()) == 1, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plain.ply"]
+
+
+def test_simulate_render_writes_a_splat_animation(tmp_path):
+    blob(tmp_path / "a.ply")
+    out = tmp_path / "sim"
+    assert main(["simulate", str(tmp_path / "a.ply"), "--out", str(out), "--frames", "3", "--fps", "30",
+                 "--no-prepare", "--device", "cpu", "--render", str(tmp_path / "run.gif"), "-q"]) == 0
+    with Image.open(tmp_path / "run.gif") as gif:
+        assert gif.n_frames == 3 and gif.size == (3 * 320, 320 + 16)
+        first = np.asarray(gif.convert("RGB"))[16:, :320]
+    assert ((first[:, :, 0] > 150) & (first[:, :, 1] < 120)).any()  # the red blob is drawn
+    assert main(["simulate", str(tmp_path / "a.ply"), "--out", str(tmp_path / "sim2"), "--frames", "3",
+                 "--no-prepare", "--render", str(tmp_path / "run.jpg"), "-q"]) == 1
+    assert not (tmp_path / "sim2").exists()

@@ -31,6 +31,8 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--fps", type=float, default=24.0, metavar="F", help="output frames per second (24)")
     p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help=DEVICE_HELP)
     p.add_argument("--rrd", metavar="FILE", help="save a rerun recording of the run")
+    p.add_argument("--render", metavar="FILE", help="also render the frames as real splats (colour | material | "
+                   "log E) to FILE.gif / .mp4 / .png, as `pixie render DIR --out FILE` does")
     p.add_argument("--spawn", action="store_true", help="stream the run live to a rerun viewer")
     p.add_argument("--fill", action="store_true", help="fill the enclosed interior of solid objects with particles "
                    "(default: automatic for a prepared object that is a closed surface shell)")
@@ -60,6 +62,14 @@ def run(args: argparse.Namespace) -> int:
     from ..sim.run import FrameState, material_arrays, placement_transform, simulate
     from ..splat import read_splat_valid
 
+    if args.render:
+        from ..gsrender.video import output_format
+
+        from ..gsrender.video import ffmpeg_exe
+
+        # a bad suffix, or .mp4 without an ffmpeg, stops before any work
+        if output_format(args.render) == ".mp4" and ffmpeg_exe() is None:
+            raise InputError("writing .mp4 needs ffmpeg: `pip install imageio-ffmpeg`, or use .gif", args.render)
     if args.frames < 1:
         raise InputError(f"--frames must be ≥ 1, got {args.frames}")
     if not FPS_RANGE[0] <= args.fps <= FPS_RANGE[1]:
@@ -120,7 +130,26 @@ def run(args: argparse.Namespace) -> int:
     stage(f"wrote {args.frames} frames, {tracks.name} and {preview.name} to {args.out}"
           + (f" (+{traj.filled} interior particles simulated)" if traj.filled else "")
           + (f"; rerun recording {saved}" if saved else ""))
+    if args.render:
+        _render(args, scene.up if prepared is None else prepared.nearest_axis)
     return 0
+
+
+def _render(args: argparse.Namespace, up: str) -> None:
+    """Real splat renders of the frames just written (see `pixie render`)."""
+    from ..devices import resolve_torch_device
+    from ..gsrender.sequence import render_frames_dir, sheet, strip_sheet
+    from ..gsrender.video import save_frames
+    from ..progress import stage
+
+    views, modes, labels = render_frames_dir(Path(args.out), None, 320, args.fps, up, -90.0, 20.0,
+                                             resolve_torch_device(args.device), (1.0, 1.0, 1.0))
+    if Path(args.render).suffix.lower() == ".png":
+        pictures = [strip_sheet(views, modes, labels)]
+    else:
+        pictures = [sheet(v, modes, lab) for v, lab in zip(views, labels)]
+    save_frames(pictures, args.render, fps=args.fps)
+    stage(f"rendered {len(views)} frames ({', '.join(modes)}) to {args.render}")
 
 
 def _prepare(cloud, args: argparse.Namespace, scene):
