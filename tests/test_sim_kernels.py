@@ -168,9 +168,10 @@ def test_sorted_and_unsorted_runs_agree(device):
     assert np.abs(F0 - F1)[snow].max() < 5e-4
 
 
-def scatter(sim: MPMSolver, kernel: str, runs: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+def scatter(sim: MPMSolver, kernel: str, runs: np.ndarray | None = None,
+            index: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """(grid mass, momentum, fixed weight) after one P2G of `kernel`: "atomic", or "chunked" with
-    one thread per run (`runs`: run starts followed by N)."""
+    one thread per run (`runs`: run starts followed by N) over particles index[i] (default: i)."""
     import warp as wp
 
     from pixie_gs.sim import kernels
@@ -183,7 +184,9 @@ def scatter(sim: MPMSolver, kernel: str, runs: np.ndarray | None = None) -> tupl
     else:
         starts = wp.array(np.asarray(runs, np.int32), dtype=wp.int32, device=d)
         count = wp.array([len(runs) - 1], dtype=wp.int32, device=d)
-        wp.launch(kernels.p2g_chunked, dim=sim.n, device=d, inputs=inputs + [starts, count] + out)
+        index = np.arange(sim.n) if index is None else index
+        order = wp.array(np.asarray(index, np.int32), dtype=wp.int32, device=d)
+        wp.launch(kernels.p2g_chunked, dim=sim.n, device=d, inputs=inputs + [starts, count, order] + out)
     return tuple(a.numpy() for a in out)
 
 
@@ -198,8 +201,10 @@ def test_chunked_p2g_matches_the_plain_atomic_kernel(device, order):
     # the solver's own cell runs; fixed-size chunks that end inside a cell run, at its end, or
     # hold many runs; one thread for everything
     own = sim.run_start.numpy()[:sim.n_runs + 1]
-    for runs in [own] + [np.append(np.arange(0, sim.n, c), sim.n) for c in (1, 8, 13, sim.n)]:
-        fast = scatter(sim, "chunked", runs)
+    cases = [(own, None)] + [(np.append(np.arange(0, sim.n, c), sim.n), None) for c in (1, 8, 13, sim.n)]
+    cases.append((np.append(np.arange(0, sim.n, 8), sim.n), rng.permutation(sim.n)))  # through an index
+    for runs, index in cases:
+        fast = scatter(sim, "chunked", runs, index)
         for a, b in zip(reference, fast):
             assert np.abs(a - b).max() <= 1e-5 * np.abs(a).max()  # summation order only
     # and the independent sums: total mass and momentum are the particles' own
@@ -210,6 +215,8 @@ def test_chunked_p2g_matches_the_plain_atomic_kernel(device, order):
 
 
 def test_solver_with_fast_p2g_agrees_with_the_atomic_one(device):
+    from pixie_gs.sim import solver as solver_module
+
     scene = scene_for_tests()
     p = mixed_block(scene)
     runs = []
@@ -218,4 +225,5 @@ def test_solver_with_fast_p2g_agrees_with_the_atomic_one(device):
         for _ in range(2):
             sim.step_frame(1 / 60)
         runs.append(sim.positions())
+    assert sim.substeps_last_frame > 2 * solver_module.SORT_SUBSTEPS  # the in-frame index re-sorts ran
     assert np.abs(runs[0] - runs[1]).max() < 1e-5

@@ -87,10 +87,11 @@ def add_stencil_sums(acc: stencil_sums, base: wp.vec3i, grid_mass: wp.array3d(dt
 def p2g_chunked(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33),
                 stress: wp.array(dtype=wp.mat33), volume: wp.array(dtype=float), mass: wp.array(dtype=float),
                 fixed: wp.array(dtype=wp.int32), grid: GridInfo, dt: float, run_start: wp.array(dtype=wp.int32),
-                n_runs: wp.array(dtype=wp.int32), grid_mass: wp.array3d(dtype=float), grid_momentum: wp.array3d(dtype=wp.vec3),
+                n_runs: wp.array(dtype=wp.int32), index: wp.array(dtype=wp.int32), grid_mass: wp.array3d(dtype=float), grid_momentum: wp.array3d(dtype=wp.vec3),
                 grid_fixed: wp.array3d(dtype=float)):
-    """P2G of `p2g` for cell-sorted particles: thread t takes the particles
-    run_start[t] ≤ p < run_start[t+1] (one cell's run, from the last sort: sort.cell_runs) and
+    """P2G of `p2g` for cell-sorted particles: thread t takes the particles index[i],
+    run_start[t] ≤ i < run_start[t+1] (one cell's run, from the last sort: sort.cell_runs; `index`
+    is the identity after the arrays themselves were sorted, or a fresher cell order) and
     sums the contributions of consecutive particles with the same stencil base in registers,
     adding them to the grid only when the base changes — one set of 27 node atomics per cell
     instead of per particle (8× fewer at 8 particles per cell). Correct for any runs and any
@@ -103,7 +104,8 @@ def p2g_chunked(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.ar
     end = run_start[t + 1]
     acc = stencil_sums()
     current = wp.vec3i(-1, -1, -1)
-    for p in range(start, end):
+    for i_run in range(start, end):
+        p = index[i_run]
         base, fx = stencil_of(x[p], grid)
         if base[0] != current[0] or base[1] != current[1] or base[2] != current[2]:
             if current[0] >= 0:

@@ -34,7 +34,7 @@ from .scene import BOUNDARY_CELLS, Scene
 from .sort import cell_order, cell_runs, chunk_runs, permute_in_place
 
 CHUNK = 8  # particles per P2G thread while the particles are in no cell order (sort_every = 0)
-SORT_SUBSTEPS = 32  # with sorting on, a long frame re-sorts every this many substeps too
+SORT_SUBSTEPS = 8  # with sorting on, the chunked P2G's cell order is refreshed every this many substeps
 
 FAR = 1.0e30  # "unbounded" for regions and time windows passed to kernels
 MAX_STRETCH = 1.0e3  # ‖F‖ or 1/J beyond this counts as diverged
@@ -63,9 +63,10 @@ class MPMSolver:
     device to finish the frame), kernel_timer (None, or an object whose mark(name) is called
     after each kernel launch: benchmarks time kernels with it).
     The scene is read once, at construction; build a new solver to change it.
-    `sort_every`: re-sort the particle arrays into cell order every this many frames, and every
-    SORT_SUBSTEPS substeps inside a frame (0: keep the caller's order, never sort). Sorted and
-    unsorted runs agree to float rounding.
+    `sort_every`: re-sort the particle arrays into cell order every this many frames (0: keep
+    the caller's order, never sort); inside a frame the chunked P2G gets a fresh cell order (an
+    index, the arrays stay put) every SORT_SUBSTEPS substeps. Sorted and unsorted runs agree to
+    float rounding.
     The Warp arrays (x, v, F, ...) are in slot order; use the accessors for the caller's order.
     `p2g`: "chunked" (one thread per run of same-cell particles sums them before touching the
     grid, kernels.p2g_chunked), "atomic" (one global atomic per particle and node, kernels.p2g, the
@@ -141,6 +142,8 @@ class MPMSolver:
         self.run_start = wp.zeros(self.n + 1, dtype=wp.int32, device=d)  # P2G thread t: run_start[t] ≤ p < [t+1]
         self.run_count = wp.zeros(1, dtype=wp.int32, device=d)  # runs in run_start (stays on the device)
         chunk_runs(self.n, CHUNK, self.run_start, self.run_count)
+        self._identity = wp.array(np.arange(self.n, dtype=np.int32), dtype=wp.int32, device=d)
+        self._p2g_index = self._identity  # P2G reads particle index[i] for run position i
         self._order_host: np.ndarray | None = None  # host copy of `order`, None when stale
         self._reducer = StatsReducer(d)
 
@@ -241,6 +244,19 @@ class MPMSolver:
         permute_in_place(perm, self._particle_arrays())
         self._order_host = None
         cell_runs(keys, self.run_start, self.run_count)
+        self._set_p2g_index(self._identity)
+
+    def _reindex(self) -> None:
+        """A fresh cell order for the chunked P2G only: sort an index, not the arrays (cheap, all
+        on the device: done every SORT_SUBSTEPS substeps as particles drift between cells)."""
+        perm, keys = cell_order(self.x, self.grid_info)
+        cell_runs(keys, self.run_start, self.run_count)
+        self._set_p2g_index(perm)
+
+    def _set_p2g_index(self, index: wp.array) -> None:
+        self._p2g_index = index
+        if self.p2g_kind == "chunked":
+            self._p2g.set_param_by_name("index", index)
 
     @property
     def n_runs(self) -> int:
@@ -336,8 +352,8 @@ class MPMSolver:
         self.grid_momentum.zero_()
         self.grid_fixed.zero_()
         for s in range(n_sub):
-            if self.sort_every > 0 and s > 0 and s % SORT_SUBSTEPS == 0:
-                self._resort()  # all on the device: the launches queue behind the substeps
+            if self.sort_every > 0 and self.p2g_kind == "chunked" and s > 0 and s % SORT_SUBSTEPS == 0:
+                self._reindex()  # all on the device: the launches queue behind the substeps
             t = t0 + s * dt
             self._apply_impulses(t + dt)
             self._substep(dt, t)
@@ -378,7 +394,8 @@ class MPMSolver:
         grid_outputs = [self.grid_mass, self.grid_momentum, self.grid_fixed]
         if self.p2g_kind == "chunked":
             self._p2g = wp.launch(kernels.p2g_chunked, dim=self.n, device=d, record_cmd=True,
-                                  inputs=particle_inputs + [self.run_start, self.run_count] + grid_outputs)
+                                  inputs=particle_inputs + [self.run_start, self.run_count, self._p2g_index]
+                                  + grid_outputs)
         else:
             self._p2g = wp.launch(kernels.p2g, dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + grid_outputs)
