@@ -33,6 +33,7 @@ from .progress import stage
 from .splat import SplatCloud
 
 EXAMPLE_NAMES = ("tree", "duck", "can", "sand", "snow")
+RENDER_ENTITY = "render"  # recordings: the real splat renders of every frame (colour | material | log E)
 
 # The demo's world (keys as in docs/scene.md). Wind blows along +x for 0.6 s with a gust, then
 # stops, so the tree bends downwind and swings back. The pot's base (lowest 3 cm) is anchored;
@@ -228,7 +229,8 @@ def run_scenario(cloud: SplatCloud, scene, out_dir: Path, frames: int, fps: floa
                  image_size_px: int = 240, strip_frames: int = 6, azimuth_deg: float = -90.0,
                  elevation_deg: float = 12.0, gif: bool = True) -> ScenarioResult:
     """Simulate an annotated `cloud` in `scene` and write, under `out_dir`: frames/frame_*.ply and
-    frames/tracks.npz, run.rrd (RGB | material | log E views with a time slider), strip.png (a row
+    frames/tracks.npz, run.rrd (RGB | material | log E views with a time slider, and the real splat
+    renders of every frame under them), strip.png (a row
     per view, evenly spaced frames) and, with `gif`, run.gif. Used by the demo and examples/.
 
     particles_per_cell: simulate at most this many Gaussians per grid cell (None = all).
@@ -268,21 +270,24 @@ def run_scenario(cloud: SplatCloud, scene, out_dir: Path, frames: int, fps: floa
         else:
             viz.log_positions(rec, viz.MATERIAL_VIEW_ENTITIES, state.x_world, time_s=state.time_s)
 
+    labels = ["colour", "material", "log10 E"]
     try:
         traj = simulate(cloud, scene, frames, fps, device=device, on_frame=on_frame, fill=fill)
         writer.finish(traj.t, x_out)
         seconds["simulate"] = time.perf_counter() - clock
-        viz.send_layout(rec, fps=fps, shared=["world"])
+        clock = time.perf_counter()
+        views = splat_views(files["frames"], scene.up, image_size_px, azimuth_deg, elevation_deg, device)
+        sheets = animation_frames(views, labels, traj.t)
+        for picture, t in zip(sheets, traj.t):  # the real splat renders, under the 3D views
+            viz.log_image(rec, RENDER_ENTITY, picture, time_s=float(t))
+        viz.send_layout(rec, fps=fps, shared=["world"], images=[RENDER_ENTITY])
         viz.close_recording(rec)
     except BaseException:
         writer.abort()
         viz.discard_recording(rec)
         raise
-    clock = time.perf_counter()
-    labels = ["colour", "material", "log10 E"]
-    views = splat_views(files["frames"], scene.up, image_size_px, azimuth_deg, elevation_deg, device)
     if gif:
-        save_gif(animation_frames(views, labels, traj.t), files["gif"], fps=fps)
+        save_gif(sheets, files["gif"], fps=fps)
     save_png(strip(views, labels, traj.t, strip_frames), files["strip"])
     seconds["render"] = time.perf_counter() - clock
     return ScenarioResult(cloud=cloud, traj=traj, x_world=x_world, files=files, seconds=seconds)

@@ -273,6 +273,17 @@ def log_material_views(rec: "rr.RecordingStream", cloud: "SplatCloud", time_s: f
     return entities
 
 
+def log_image(rec: "rr.RecordingStream", entity: str, image: np.ndarray, time_s: float | None = None) -> None:
+    """An RGB picture (H,W,3 uint8, e.g. a real splat render of one frame) at `time_s`, JPEG-compressed."""
+    import rerun as rr
+
+    if not rec.is_enabled():
+        return
+    static = _set_time(rec, time_s)
+    rec.log(entity, rr.Image(np.ascontiguousarray(image[:, :, :3], np.uint8)).compress(jpeg_quality=85),
+            static=static)
+
+
 def log_scalar(rec: "rr.RecordingStream", entity: str, value: float, time_s: float | None = None) -> None:
     """A scalar time series point (e.g. kinetic energy, gap to measurement) at `time_s`."""
     import rerun as rr
@@ -285,10 +296,11 @@ def log_scalar(rec: "rr.RecordingStream", entity: str, value: float, time_s: flo
 
 def send_layout(rec: "rr.RecordingStream", entities: Sequence[str] = MATERIAL_VIEW_ENTITIES,
                 names: Sequence[str] | None = None, plots: Sequence[str] = (),
-                fps: float | None = None, shared: Sequence[str] = ()) -> None:
+                fps: float | None = None, shared: Sequence[str] = (), images: Sequence[str] = ()) -> None:
     """Send a blueprint: one 3D view per entity side by side (default the three material views),
-    each also showing the `shared` entities (e.g. a ground plane), optional time-series plots
-    below them, and an expanded time panel on the `time` line."""
+    each also showing the `shared` entities (e.g. a ground plane), optional 2D views of `images`
+    (e.g. real splat renders, `log_image`) and time-series plots below them, and an expanded time
+    panel on the `time` line."""
     import rerun.blueprint as rrb
 
     if not rec.is_enabled():
@@ -299,6 +311,9 @@ def send_layout(rec: "rr.RecordingStream", entities: Sequence[str] = MATERIAL_VI
     views = [rrb.Spatial3DView(origin="/", contents=[f"/{e.strip('/')}/**", *common], name=n)
              for e, n in zip(entities, names)]
     top = rrb.Horizontal(*views)
+    if images:
+        top = rrb.Vertical(top, rrb.Horizontal(*[rrb.Spatial2DView(origin=f"/{e.strip('/')}", name=e.strip("/"))
+                                                for e in images]), row_shares=[3, 2])
     if plots:
         layout = rrb.Vertical(top, rrb.Horizontal(*[rrb.TimeSeriesView(origin=f"/{p.strip('/')}", name=p)
                                                    for p in plots]), row_shares=[3, 1])

@@ -97,3 +97,16 @@ def test_simulate_render_writes_a_splat_animation(tmp_path):
     assert main(["simulate", str(tmp_path / "a.ply"), "--out", str(tmp_path / "sim2"), "--frames", "3",
                  "--no-prepare", "--render", str(tmp_path / "run.jpg"), "-q"]) == 1
     assert not (tmp_path / "sim2").exists()
+
+
+def test_demo_recording_holds_the_splat_renders(tmp_path):
+    from pixie_gs.demo import RENDER_ENTITY, DemoSettings, run_demo
+    from pixie_gs.viz import read_recording_entities
+
+    result = run_demo(tmp_path / "demo", DemoSettings(frames=3, particles_per_cell=1, device="cpu", image_size_px=64))
+    assert read_recording_entities(result.files["rrd"]).get("/" + RENDER_ENTITY, 0) == 3  # one picture per frame
+    with Image.open(result.files["gif"]) as gif:
+        assert gif.n_frames == 3 and gif.size == (3 * 64, 64 + 16)
+        colour = np.asarray(gif.convert("RGB"))[16:, :64].astype(int)
+    green = (colour[:, :, 1] > colour[:, :, 0] + 20) & (colour[:, :, 1] > colour[:, :, 2] + 20)
+    assert green.mean() > 0.03  # the tree's foliage is drawn in its own colour
