@@ -125,6 +125,7 @@ class SplatCloud:
     property_order: list[str] = field(default_factory=list)
     source: str | None = None
     source_format: str | None = None  # format it was read from (pixie_gs.formats.FORMATS), if read
+    comments: list[str] = field(default_factory=list)  # PLY header comments (e.g. "pixie up 0 1 0"), kept on write
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -280,7 +281,7 @@ class SplatCloud:
             means=self.means.copy(), log_scales=self.log_scales.copy(), rotations=self.rotations.copy(),
             opacity_logits=self.opacity_logits.copy(), sh_dc=self.sh_dc.copy(), sh_rest=self.sh_rest.copy(),
             extras={k: v.copy() for k, v in self.extras.items()}, property_order=list(self.property_order),
-            source=self.source, source_format=self.source_format,
+            source=self.source, source_format=self.source_format, comments=list(self.comments),
         )
 
     def subset(self, index: np.ndarray) -> "SplatCloud":
@@ -289,7 +290,7 @@ class SplatCloud:
             means=self.means[index], log_scales=self.log_scales[index], rotations=self.rotations[index],
             opacity_logits=self.opacity_logits[index], sh_dc=self.sh_dc[index], sh_rest=self.sh_rest[index],
             extras={k: v[index] for k, v in self.extras.items()}, property_order=list(self.property_order),
-            source=self.source, source_format=self.source_format,
+            source=self.source, source_format=self.source_format, comments=list(self.comments),
         )
 
     @staticmethod
@@ -311,6 +312,7 @@ class SplatCloud:
             extras={k: np.concatenate([c.extras[k] for c in clouds]) for k in common},
         )
         out.property_order = [p for p in clouds[0].property_order if p in common or not _is_extra(p)]
+        out.comments = list(clouds[0].comments)
         return out
 
     # ------------------------------------------------------------------ validation

@@ -42,8 +42,9 @@ def floor_and_box(tilt: np.ndarray, n_floor: int = 12000, n_box: int = 6000, see
         pts[m, other[0]], pts[m, other[1]] = uv[m, 0], uv[m, 1]
         nrm[m, axis] = sign
     pts[:, 2] += 0.25
-    cloud = SplatCloud.concatenate([flat_gaussians(floor, fn, 0.01, (0.5, 0.5, 0.5)),
-                                    flat_gaussians(pts, nrm, 0.006, (0.8, 0.2, 0.2))])
+    # one Gaussian size everywhere: no "seen better from above" evidence, the floor alone decides
+    cloud = SplatCloud.concatenate([flat_gaussians(floor, fn, 0.008, (0.5, 0.5, 0.5)),
+                                    flat_gaussians(pts, nrm, 0.008, (0.8, 0.2, 0.2))])
     R = np.asarray(tilt)
     cloud.means = (cloud.means.astype(np.float64) @ R.T).astype(np.float32)
     cloud.set_covariances(R @ cloud.covariances() @ R.T)
@@ -99,7 +100,7 @@ def test_tilted_floor_gives_up_ground_height_and_object(seed):
     out, scene = prepare_cloud(cloud)
     truth = tilt @ [0, 0, 1]
     assert angle_deg(scene.up, truth) < 3.0
-    assert scene.up_method == "ground-plane" and scene.ground_height is not None
+    assert scene.up_method.startswith("ground-plane") and scene.ground_height is not None
     assert abs(scene.ground_height) < 0.01  # the floor passes through the origin (tilted about it)
     role = out.get("role")
     assert np.mean(role[:n_floor] == ROLE_GROUND) > 0.95
@@ -218,3 +219,46 @@ def test_bad_crop_and_up_fail_cleanly(tmp_path, capsys):
     assert not (tmp_path / "o.ply").exists()
     with pytest.raises(SystemExit):
         main(["prepare", str(src), str(tmp_path / "o.ply"), "--up", "sideways"])
+
+
+# ------------------------------------------------------------------- declared up, flat-based sign
+def test_gltf_declares_y_up_and_prepare_honours_it(tmp_path):
+    """glTF's spec defines +Y as up: `pixie convert` records it in the PLY header, the INRIA reader
+    and writer keep the comment, and prepare takes it with confidence 1 (even for a shape whose
+    own evidence would say otherwise: a box lying along z)."""
+    import trimesh
+
+    mesh = trimesh.creation.box(extents=[0.2, 0.3, 1.0])
+    glb = tmp_path / "thing.glb"
+    mesh.export(str(glb))
+    ply = tmp_path / "thing.ply"
+    assert main(["convert", str(glb), str(ply), "--count", "3000", "-q"]) == 0
+    cloud = read_splat(ply)
+    assert "pixie up 0 1 0" in cloud.comments
+    again = tmp_path / "again.ply"
+    write_splat(cloud, again)
+    assert read_splat(again).comments == cloud.comments
+    _, scene = prepare_cloud(cloud)
+    assert np.allclose(scene.up, [0, 1, 0]) and scene.up_confidence == 1.0
+    assert scene.up_method == "declared by the file" and scene.up_source == "file"
+    _, given = prepare_cloud(cloud, up="z")  # the user's --up still wins
+    assert np.allclose(given.up, [0, 0, 1]) and given.up_source == "given"
+
+
+@pytest.mark.parametrize("height, radius", [(0.4, 0.5), (1.5, 0.3)])
+def test_sign_of_up_on_a_flat_based_cone(height, radius):
+    """A cone stands on its flat base, apex up (analytic truth: its axis), under random turns;
+    one Gaussian size everywhere, so only the shape (base plane, heavy end) can give the sign."""
+    import trimesh
+
+    from pixie_gs.convert import mesh_to_splat
+
+    mesh = trimesh.creation.cone(radius=radius, height=height, sections=48)
+    cloud = mesh_to_splat(mesh, 6000, np.random.default_rng(0))
+    for k in range(3):
+        R = Rotation.random(random_state=10 + k).as_matrix()
+        turned = cloud.copy()
+        turned.means = (cloud.means.astype(np.float64) @ R.T).astype(np.float32)
+        turned.set_covariances(R @ cloud.covariances() @ R.T)
+        _, scene = prepare_cloud(turned)
+        assert angle_deg(scene.up, R @ [0, 0, 1]) < 10.0, scene.up_method

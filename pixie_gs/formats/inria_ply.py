@@ -74,7 +74,9 @@ def read(path: str | Path) -> SplatCloud:
     data = _vertex_table(header, path)
     if data is None:
         data = _read_with_plyfile(path)
-    return _to_cloud(data, path)
+    cloud = _to_cloud(data, path)
+    cloud.comments = list(header.comments)
+    return cloud
 
 
 def _read_with_plyfile(path: Path) -> np.ndarray:
@@ -168,4 +170,4 @@ def write(cloud: SplatCloud, path: str | Path) -> None:
     cloud.validate()
     element = PlyElement.describe(to_structured(cloud), "vertex")
     with atomic_path(path, suffix=".ply.tmp") as tmp:
-        PlyData([element], text=False, byte_order="<").write(str(tmp))
+        PlyData([element], text=False, byte_order="<", comments=list(cloud.comments)).write(str(tmp))

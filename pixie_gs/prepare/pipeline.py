@@ -11,14 +11,16 @@ import numpy as np
 
 from ..splat import SplatCloud
 from .density import floater_mask, robust_spacing
-from .gravity import estimate_up, score_direction, flat_normals
+from .gravity import GROUND_SHARE, GROUND_WIDER, flat_normals, score_direction
+from .orient import estimate_orientation
 from .objects import Crop, components, fit_box, parse_crop, pick_objects, robust_box
 from .scene import (ROLE_BACKGROUND, ROLE_FLOATER, ROLE_GROUND, ROLE_NAMES, ROLE_OBJECT, PreparedObject,
                     PreparedScene)
-from .updir import nearest_axis, parse_up, rotation_to_z
+from .updir import declared_up, nearest_axis, parse_up, rotation_to_z
 
 LOW_CONFIDENCE = 0.06  # below this the estimate is not trusted and +z is kept
-SNAP_DEG = 2.5  # an estimate this close to a file axis is taken as that axis
+SNAP_DEG = 6.0  # an estimate this close to a file axis is taken as that axis (capture tools align files with gravity)
+SNAP_TALL_DEG = 12.0  # … and for a tall object's long axis (guitars on stands, bottles against a wall lean)
 TINY_COMPONENT = 0.002  # share of the Gaussians below which a cluster away from objects is a floater
 
 
@@ -35,6 +37,10 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
     t0 = time.perf_counter()
     crop_obj = parse_crop(crop) if isinstance(crop, str) or crop is None else crop
     given = parse_up(up) if not isinstance(up, np.ndarray) else parse_up(up)
+    source = "given"
+    if given is None:
+        given = declared_up(cloud.comments)
+        source = "declared by the file"
     x = cloud.means.astype(np.float64)
     alpha = cloud.opacities.astype(np.float64)
     n = len(x)
@@ -49,26 +55,26 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
         keep &= crop_obj.contains(x)
     # ---- up and the support plane
     if given is None:
-        est = estimate_up(x[keep], alpha[keep], cloud.rotations[keep], cloud.log_scales[keep], spacing, seed=seed)
+        est = estimate_orientation(x[keep], alpha[keep], cloud.rotations[keep], cloud.log_scales[keep], spacing,
+                                   seed=seed)
         u, method, confidence = est.up, est.method, est.confidence
-        if confidence < LOW_CONFIDENCE:  # no clear evidence: keep the file's +z (pixie's own convention)
-            u, method, is_ground = np.array([0.0, 0.0, 1.0]), f"default (evidence weak: {est.method})", False
         axis, angle = nearest_axis(u)
-        if angle < SNAP_DEG:  # a file written axis-aligned by its tool: take the axis exactly
+        if angle < (SNAP_TALL_DEG if est.method.startswith("long axis") else SNAP_DEG):  # the file's own axis
             u = parse_up(axis)
-        is_ground, base = est.is_ground, est.base_height
+            method += f", snapped to the file's {axis} axis ({angle:.1f}° away)"
     else:
-        u, method, confidence = given, "given", 1.0
-        sub = np.nonzero(keep)[0]
-        if len(sub) > 12000:
-            sub = np.random.default_rng(seed).choice(sub, 12000, replace=False)
-        normals, flat = flat_normals(cloud.rotations[sub], cloud.log_scales[sub])
-        lo, hi = np.percentile(x[sub], [1, 99], axis=0)
-        tol = max(1.5 * spacing, 0.006 * float(np.linalg.norm(hi - lo)))
-        s = score_direction(x[sub], np.clip(alpha[sub], 0.05, 1), normals, flat, u, tol, refine=False)
-        from .gravity import GROUND_SHARE, GROUND_WIDER
-        is_ground = s.support >= GROUND_SHARE and s.footprint_ratio > GROUND_WIDER and s.stable
-        base = s.base
+        u, method, confidence = given, source, 1.0
+    sub = np.nonzero(keep)[0]
+    if len(sub) > 12000:
+        sub = np.random.default_rng(seed).choice(sub, 12000, replace=False)
+    normals, flat = flat_normals(cloud.rotations[sub], cloud.log_scales[sub])
+    lo, hi = np.percentile(x[sub], [1, 99], axis=0)
+    tol = max(1.5 * spacing, 0.006 * float(np.linalg.norm(hi - lo)))
+    s = score_direction(x[sub], np.clip(alpha[sub], 0.05, 1), normals, flat, u, tol, refine=False)
+    is_ground = s.support >= GROUND_SHARE and s.footprint_ratio > GROUND_WIDER and s.stable
+    base = s.base
+    if is_ground and given is None:
+        method = f"ground-plane ({method})"
     R = rotation_to_z(u)
     xu = x @ R.T
     # ---- ground
@@ -116,7 +122,7 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
                                       _box(flo, fhi)))
     axis, angle = nearest_axis(u)
     scene = PreparedScene(
-        up=[float(v) for v in u], up_source="auto" if given is None else "given", up_method=method,
+        up=[float(v) for v in u], up_source="auto" if given is None else ("file" if source != "given" else "given"), up_method=method,
         up_confidence=round(float(confidence), 3), nearest_axis=axis, angle_from_axis_deg=round(angle, 2),
         ground_height=ground_height, ground_extent_up=ground_extent, objects=objects,
         counts={name: int((role == code).sum()) for code, name in ROLE_NAMES.items()},

@@ -75,6 +75,24 @@ def fix_negative_up(argv: list[str]) -> list[str]:
     return out
 
 
+DECLARED_PREFIX = "pixie up"  # PLY header comment "pixie up X Y Z": the up a file declares (written by convert)
+
+
+def declared_up(comments: "list[str] | None") -> "np.ndarray | None":
+    """Unit up vector (3,) a file declares in a header comment `pixie up X Y Z` (written by
+    `pixie convert` for glTF input, whose spec defines +Y as up), or None."""
+    for line in comments or []:
+        words = line.strip().split()
+        if len(words) == 5 and " ".join(words[:2]).lower() == DECLARED_PREFIX:
+            try:
+                v = np.asarray([float(w) for w in words[2:]])
+            except ValueError:
+                continue
+            if np.isfinite(v).all() and np.linalg.norm(v) > 1e-12:
+                return v / np.linalg.norm(v)
+    return None
+
+
 def rotation_to_z(up: "np.ndarray | str") -> np.ndarray:
     """Proper rotation (3,3) R with R·up = +z: the smallest turn (Rodrigues); a half turn about x
     for up = −z. For the six axes this equals the tables used before vectors were allowed."""
