@@ -164,18 +164,6 @@ class Carrier:
                        x_world=state.x_world[self.anchor], F=F)
 
 
-def render_views(x_world: np.ndarray, colours: list[np.ndarray], size_px: int, azimuth_deg: float = -90.0,
-                 elevation_deg: float = 12.0) -> list[list[np.ndarray]]:
-    """Pictures [frame][view] of positions x_world (T,N,3) (z up), one view per colouring in
-    `colours`, all fitted to the bounds of the whole run so the camera stays still."""
-    from .render import render_points
-
-    flat = x_world.reshape(-1, 3)
-    bounds = (flat.min(axis=0), flat.max(axis=0))
-    return [[render_points(x, c, size=(size_px, size_px), azimuth_deg=azimuth_deg, elevation_deg=elevation_deg,
-                           up="z", bounds=bounds) for c in colours] for x in x_world]
-
-
 def splat_views(frames_dir: Path, up: str, size_px: int, azimuth_deg: float, elevation_deg: float,
                 device: str = "auto") -> list[list[np.ndarray]]:
     """Real 3DGS renders [frame][colour, material, log E] of the written frame files (every
