@@ -1,7 +1,8 @@
 """`annotate_cloud`: predict per-Gaussian materials for a splat with a trained checkpoint.
 
 Library entry used by `pixie annotate`, the demo and diagnose: field → U-Net → nearest-voxel
-transfer, result written as `material_id`, `E` (Pa), `nu`, `density` (kg/m³) on a copy.
+transfer, result written as `material_id`, `E` (Pa), `nu`, `density` (kg/m³) and `confidence` (0–1:
+the network's class probability times an out-of-distribution factor) on a copy.
 
 With a PreparedScene (pixie_gs/prepare), each object is predicted on its own (turned so its up
 vector is +z, normalised by its robust box), background and ground become `stationary`
@@ -43,7 +44,7 @@ def annotate_cloud(cloud: SplatCloud, checkpoint: str | Path | None = None, devi
     from .devices import resolve_torch_device
     from .field import up_rotation
     from .model.predict import predict_materials
-    from .transfer import nearest_voxel_values, write_materials
+    from .transfer import write_materials
 
     if prepared is None and isinstance(up, str):
         up_rotation(up)  # validates the axis name before any heavy work
@@ -52,9 +53,10 @@ def annotate_cloud(cloud: SplatCloud, checkpoint: str | Path | None = None, devi
     if prepared is None:
         stage(f"predicting materials for {len(cloud)} Gaussians on {dev}")
         mgrid = predict_materials(loaded, cloud, dev, up)
-        mat, phys = nearest_voxel_values(mgrid.grid.extra["means_unit"], mgrid.classes, mgrid.physical,
-                                         mgrid.occupancy)
+        mat, phys, conf = _per_gaussian(mgrid)
         out = write_materials(cloud, mat, phys)
+        out.set("confidence", conf)
+        _say_confidence([(None, conf, mgrid.in_distribution)])
         return (out, mgrid) if return_grid else out
     return _annotate_prepared(cloud, loaded, dev, prepared, return_grid)
 
@@ -63,13 +65,15 @@ def _annotate_prepared(cloud: SplatCloud, loaded, dev: str, prepared, return_gri
     """Per-object prediction; everything that is not an object becomes stationary."""
     from .materials import normalize_physical
     from .model.predict import predict_materials
-    from .transfer import nearest_voxel_values, write_materials
+    from .transfer import write_materials
 
     n = len(cloud)
     object_id = cloud.get("object_id").astype(np.int64)
     mat = np.full(n, STATIONARY, np.int32)
     phys = np.tile(normalize_physical(np.array([STATIONARY_E_PA]), np.array([STATIONARY_NU]),
                                       np.array([STATIONARY_DENSITY])).astype(np.float32), (n, 1))
+    conf = np.ones(n, np.float32)  # background, ground and floaters: held in place by rule, not predicted
+    summaries: list = []
     first_grid = None
     up = prepared.up_vector
     for obj in prepared.objects:
@@ -80,8 +84,34 @@ def _annotate_prepared(cloud: SplatCloud, loaded, dev: str, prepared, return_gri
         part = cloud.subset(sel)
         box = (np.asarray(obj.fit_box_up[0]), np.asarray(obj.fit_box_up[1]))
         mgrid = predict_materials(loaded, part, dev, up, box=box)
-        m, p = nearest_voxel_values(mgrid.grid.extra["means_unit"], mgrid.classes, mgrid.physical, mgrid.occupancy)
-        mat[sel], phys[sel] = m, p
+        m, p, c = _per_gaussian(mgrid)
+        mat[sel], phys[sel], conf[sel] = m, p, c
+        summaries.append((obj.object_id, c, mgrid.in_distribution))
         first_grid = first_grid or mgrid
     out = write_materials(cloud, mat, phys)
+    out.set("confidence", conf)
+    _say_confidence(summaries)
     return (out, first_grid) if return_grid else out
+
+
+def _per_gaussian(mgrid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(material_id, normalised physical, confidence) per Gaussian from its nearest material voxel."""
+    from .transfer import nearest_voxel_index
+
+    vox = nearest_voxel_index(mgrid.grid.extra["means_unit"], mgrid.classes, mgrid.occupancy)
+    i, j, k = vox[:, 0], vox[:, 1], vox[:, 2]
+    conf = (mgrid.confidence[i, j, k] if mgrid.confidence is not None else np.ones(len(vox))).astype(np.float32)
+    return (mgrid.classes[i, j, k].astype(np.int32), mgrid.physical[:, i, j, k].T.astype(np.float32), conf)
+
+
+def _say_confidence(summaries: list[tuple[object, np.ndarray, float]]) -> None:
+    """One stage line per object: mean confidence, and a warning when the materials are a guess."""
+    from .model.predict import GUESS_THRESHOLD
+
+    for object_id, conf, ind in summaries:
+        name = "object" if object_id is None else f"object {object_id}"
+        mean = float(np.mean(conf)) if len(conf) else 0.0
+        line = f"{name}: mean material confidence {mean:.2f} (in-distribution {ind:.2f})"
+        if mean < GUESS_THRESHOLD:
+            line += f"; {name} looks unlike the training data: treat its materials as a guess"
+        stage(line)

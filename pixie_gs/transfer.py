@@ -12,12 +12,10 @@ from .materials import BACKGROUND, denormalize_physical
 from .splat import SplatCloud
 
 
-def nearest_voxel_values(points_unit: np.ndarray, classes: np.ndarray, physical: np.ndarray,
-                         occupancy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(material_id (M,) int32, normalised physical (M,3)) for points (M,3) in the unit cube.
+def nearest_voxel_index(points_unit: np.ndarray, classes: np.ndarray, occupancy: np.ndarray) -> np.ndarray:
+    """(M,3) int voxel index of the nearest occupied material voxel for points (M,3) in the unit cube.
 
-    `classes` (N,N,N), `physical` (3,N,N,N), `occupancy` (N,N,N) bool on the grid over [0,1]³.
-    """
+    `classes` (N,N,N) and `occupancy` (N,N,N) bool on the grid over [0,1]³."""
     n = classes.shape[0]
     candidates = occupancy & (classes != BACKGROUND) & (classes >= 0)
     if not candidates.any():
@@ -34,6 +32,16 @@ def nearest_voxel_values(points_unit: np.ndarray, classes: np.ndarray, physical:
         idx = np.argwhere(candidates)
         _, nearest = cKDTree((idx + 0.5) / n).query(pts[outside], k=1)
         vox[outside] = idx[nearest]
+    return vox
+
+
+def nearest_voxel_values(points_unit: np.ndarray, classes: np.ndarray, physical: np.ndarray,
+                         occupancy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(material_id (M,) int32, normalised physical (M,3)) for points (M,3) in the unit cube.
+
+    `classes` (N,N,N), `physical` (3,N,N,N), `occupancy` (N,N,N) bool on the grid over [0,1]³.
+    """
+    vox = nearest_voxel_index(points_unit, classes, occupancy)
     mat = classes[vox[:, 0], vox[:, 1], vox[:, 2]].astype(np.int32)
     phys = physical[:, vox[:, 0], vox[:, 1], vox[:, 2]].T.astype(np.float32)
     return mat, phys

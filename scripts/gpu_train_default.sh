@@ -9,6 +9,7 @@ set -u -o pipefail
 START=$(date +%s)
 OUT=${OUT:?set OUT to the output folder}
 NABL=${NABL:-1500}                 # train objects used by each ablation model
+ABLATIONS=${ABLATIONS:-1}          # 0: train only the full model (it gets the whole GPU)
 DEVICE=${DEVICE:-cuda}; WORKERS=${WORKERS:-16}; TOTAL_S=${TOTAL_S:-570}
 DATA=${DATA:-/tmp/pixie_data}; SEED=${SEED:-1}
 EXTRA_TRAIN_ARGS=${EXTRA_TRAIN_ARGS:-}
@@ -41,6 +42,7 @@ du -sh "$DATA" >>"$LOG"
 NOW=$(elapsed)
 FULL_BUDGET=$(( TOTAL_S - NOW - 165 ))           # leave time for loading (~70 s) + test evaluation (~60 s)
 ABL_BUDGET=$(( FULL_BUDGET * 45 / 100 ))
+[ "$ABLATIONS" = 0 ] && ABL_BUDGET=0
 [ $FULL_BUDGET -lt 30 ] && { say "no time left to train ($FULL_BUDGET s)"; exit 1; }
 say "training: full budget ${FULL_BUDGET} s, ablations ${ABL_BUDGET} s each"
 train() {  # name inputs budget extra-args...
@@ -53,9 +55,11 @@ train() {  # name inputs budget extra-args...
   cat "$OUT/eval_$name.txt" >>"$LOG"
 }
 train pixie_default full $FULL_BUDGET &
-sleep 5
-train ablation_rgb rgb $ABL_BUDGET --limit-train $NABL &
-train ablation_occupancy occupancy $ABL_BUDGET --limit-train $NABL &
+if [ "$ABLATIONS" != 0 ]; then
+  sleep 5
+  train ablation_rgb rgb $ABL_BUDGET --limit-train $NABL &
+  train ablation_occupancy occupancy $ABL_BUDGET --limit-train $NABL &
+fi
 wait
 rm -f "$OUT/ablation_rgb.pt" "$OUT/ablation_occupancy.pt" "$OUT"/ablation_*.state.pt "$OUT"/eval_*.txt
 python3 - "$OUT" <<'PY'

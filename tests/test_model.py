@@ -197,3 +197,50 @@ def test_train_resume_and_evaluate_cli_on_a_generated_dataset(tmp_path, capsys):
     assert metrics["voxel"]["mse_avg"] == pytest.approx(np.mean([metrics["voxel"][f"mse_{k}"]
                                                                  for k in ("log_E", "nu", "log_rho")]))
     assert main(["train", str(tmp_path / "nowhere"), "--out", str(tmp_path / "x.pt"), "--device", "cpu", "-q"]) == 1
+
+
+# ------------------------------------------------------------------ outputs inside physics (issue 12)
+def _dark_rod() -> SplatCloud:
+    """A dark 0.6 m rod of 20k Gaussians: the shipped network's raw E head extrapolates above its labels here."""
+    import trimesh
+
+    from pixie_gs.convert import mesh_to_splat
+
+    rng = np.random.default_rng(0)
+    return mesh_to_splat(trimesh.creation.cylinder(0.1, 0.6), 20000, rng, rgb=np.array([0.1, 0.1, 0.1], np.float32),
+                         opacity=0.9)
+
+
+@pytest.mark.parametrize("bias", [0.0, 3.0, -3.0])
+def test_annotate_outputs_stay_inside_label_ranges(bias, monkeypatch):
+    """E, ν, ρ lie inside the public label statistics (log10 E ∈ [3.018, 10.882] Pa, ν ∈ [0.210, 0.449],
+    log10 ρ ∈ [1.703, 3.871] kg/m³) on an input where the old shipped network's raw head gave E above them
+    (bias 0), and when the real network's last layer is pushed far outside (bias ±3: raw E 10^14 / 10^-1 Pa)."""
+    from pixie_gs import annotate as ann
+    from pixie_gs.model.predict import label_ranges
+
+    loaded = load_checkpoint(None, "cpu")
+    with torch.no_grad():
+        loaded.model.physical_head.bias += bias
+    monkeypatch.setitem(ann._CACHE, (str(DEFAULT_CHECKPOINT), "cpu"), loaded)
+    out = ann.annotate_cloud(_dark_rod(), device="cpu")
+    _, E, nu, rho = out.get_materials()
+    r = label_ranges(loaded.meta)
+    tol = 1e-4
+    assert r["log10_E_pa"][0] >= 3.018 - tol and r["log10_E_pa"][1] <= 10.882 + tol
+    assert np.log10(E).max() <= r["log10_E_pa"][1] + tol and np.log10(E).min() >= r["log10_E_pa"][0] - tol
+    assert nu.max() < 0.5 and nu.max() <= r["nu"][1] + tol and nu.min() >= r["nu"][0] - tol
+    assert np.log10(rho).max() <= r["log10_density_kg_m3"][1] + tol
+    assert np.log10(rho).min() >= r["log10_density_kg_m3"][0] - tol
+    if bias > 0:  # every value pinned at the top of the range
+        assert np.log10(E).min() == pytest.approx(r["log10_E_pa"][1], abs=1e-3)
+    if bias < 0:
+        assert np.log10(E).max() == pytest.approx(r["log10_E_pa"][0], abs=1e-3)
+
+
+def test_label_ranges_from_meta_and_nu_cap():
+    from pixie_gs.model.predict import label_ranges
+
+    assert label_ranges({})["log10_E_pa"] == [3.018, 10.882]
+    r = label_ranges({"label_ranges": {"log10_E_pa": [4.0, 11.0], "nu": [0.1, 0.6], "log10_density_kg_m3": "bad"}})
+    assert r["log10_E_pa"] == [4.0, 11.0] and r["nu"] == [0.1, 0.49] and r["log10_density_kg_m3"] == [1.703, 3.871]

@@ -15,6 +15,8 @@ from ..errors import InputError
 from ..splat import SplatCloud
 from .labels import ClassSpec, choose_parts, sample_part_values
 from .primitives import rotation_z
+from .realism import capture_like
+from . import household  # noqa: F401  (registers the everyday-object recipes)
 from .shapes import RECIPES, Piece
 
 SURFACE_SHARE_OF_FILLED = 0.4  # filled pieces: this share of their Gaussians on the surface, rest inside
@@ -42,8 +44,12 @@ def allocate_counts(pieces: list[Piece], total: int) -> list[tuple[int, int]]:
     return out
 
 
-def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int) -> tuple[SplatCloud, dict]:
+def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int, realistic: bool = False
+                 ) -> tuple[SplatCloud, dict]:
     """One labelled object of class `spec` from `object_seed`, about `n_gaussians` Gaussians.
+
+    realistic: make it look like a trained capture (pixie_gs/dataset/realism.py: opacity and shape
+    spread, view-dependent colour, partial surfaces, floaters, a small tilt).
 
     Returns the cloud (with material_id, E, nu, density, part_id per Gaussian) and its index
     record (class, parts with sampled values and counts, seed, shape parameters).
@@ -86,6 +92,9 @@ def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int) -> tuple[S
     cloud = SplatCloud.concatenate(clouds)
     cloud.log_scales = (cloud.log_scales + np.float32(math.log(size_factor))).astype(np.float32)
     part_id = np.concatenate(part_ids)
+    realism = None
+    if realistic:
+        cloud, part_id, realism = capture_like(cloud, part_id, rng)
     by_id = {spec.part(name).part_id: name for name in present}
     n = len(cloud)
     material = np.empty(n, np.int32)
@@ -118,4 +127,6 @@ def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int) -> tuple[S
         ],
         "shape": shape,
     }
+    if realism is not None:
+        record["realism"] = realism.to_dict()
     return cloud, record

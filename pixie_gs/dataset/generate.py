@@ -56,6 +56,7 @@ class ObjectTask:
     n_gaussians: int
     directory: str
     table_path: str | None
+    realistic: bool = True
 
 
 _TABLE_CACHE: dict[str | None, dict[str, ClassSpec]] = {}
@@ -73,7 +74,7 @@ def write_object(task: ObjectTask) -> dict:
     was_quiet = is_quiet()
     set_quiet(True)  # per-piece bars (e.g. the converter's interior fill) would bury the object bar
     try:
-        cloud, record = build_object(spec, task.seed, task.n_gaussians)
+        cloud, record = build_object(spec, task.seed, task.n_gaussians, task.realistic)
     finally:
         set_quiet(was_quiet)
     stem = object_stem(task.index, task.class_name)
@@ -97,11 +98,12 @@ def resolve_classes(table: dict[str, ClassSpec], names: list[str] | None) -> lis
 
 def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None = None, seed: int = 0,
                    split: str = "train", workers: int = 1, n_gaussians: int = 50_000,
-                   table_path: str | Path | None = None, force: bool = False) -> Path:
+                   table_path: str | Path | None = None, force: bool = False, realistic: bool = True) -> Path:
     """Write `count` objects of `split` under `out_dir`; returns the split directory.
 
     Classes are assigned round-robin; objects are built in `workers` spawned processes (1: in this
-    process). Refuses to replace an existing split unless `force`.
+    process). Refuses to replace an existing split unless `force`. `realistic`: objects look like trained
+    captures (pixie_gs/dataset/realism.py); False gives the clean converter output.
     """
     if count < 1:
         raise InputError(f"--count must be ≥ 1 (got {count})")
@@ -126,7 +128,7 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
         shutil.rmtree(partial)
     partial.mkdir()
     tasks = [ObjectTask(i, class_for_index(i, chosen), object_seed(seed, split, i), n_gaussians, str(partial),
-                        table_arg) for i in range(count)]
+                        table_arg, realistic) for i in range(count)]
     try:
         entries = _run_tasks(tasks, workers)
         index = {"format_version": FORMAT_VERSION, "split": split, "seed": int(seed), "count": count,

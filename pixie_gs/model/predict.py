@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..field import DENSITY_CHANNELS, BASE_FEATURES, FeatureGrid, feature_grid
-from ..materials import BACKGROUND
+from ..materials import BACKGROUND, LOG10_DENSITY_RANGE, LOG10_E_RANGE, NU_RANGE, normalize_physical
 from ..splat import SplatCloud
 from .checkpoint import LoadedModel
 
@@ -14,12 +14,15 @@ from .checkpoint import LoadedModel
 @dataclass
 class MaterialGrid:
     """Per-voxel predictions: `classes` (N,N,N) int (BACKGROUND where unoccupied), `physical`
-    (3,N,N,N) normalised (log10 E, ν, log10 ρ) in [-1, 1], `occupancy` (N,N,N) bool, the input grid."""
+    (3,N,N,N) normalised (log10 E, ν, log10 ρ) in [-1, 1], `occupancy` (N,N,N) bool, the input grid,
+    and how far to trust them (`confidence`, `in_distribution`; see `voxel_confidence`)."""
 
     classes: np.ndarray
     physical: np.ndarray
     occupancy: np.ndarray
     grid: FeatureGrid
+    confidence: np.ndarray | None = None  # (N,N,N) class probability × in_distribution, in [0, 1]
+    in_distribution: float = 1.0  # 1: the object's grid statistics look like the training objects'
 
 
 def grid_channel_names(extra_names) -> list[str]:
@@ -41,8 +44,84 @@ def classes_from_logits(logits, occupied):
     return torch.where(occupied, best, torch.full_like(best, BACKGROUND))
 
 
-def run_model(loaded: LoadedModel, values, channel_names: list[str], occupied):
-    """(classes (B,N,N,N) long, physical (B,3,N,N,N) float32) from full grid tensors on the model's device."""
+# Physical limits of any prediction: ν stays below this even if a checkpoint's label range says otherwise.
+NU_MAX = 0.49
+LABEL_KEYS = ("log10_E_pa", "nu", "log10_density_kg_m3")
+
+
+def default_label_ranges() -> dict[str, list[float]]:
+    """Label ranges for checkpoints that store none: the public Pixie statistics (materials.py)."""
+    return {"log10_E_pa": list(LOG10_E_RANGE), "nu": list(NU_RANGE), "log10_density_kg_m3": list(LOG10_DENSITY_RANGE)}
+
+
+def label_ranges(meta: dict) -> dict[str, list[float]]:
+    """The (low, high) label ranges a checkpoint's outputs are clamped to: `meta["label_ranges"]` when
+    it is well formed (log10 E Pa, ν, log10 ρ kg/m³), else the public statistics. ν is capped at NU_MAX."""
+    out = default_label_ranges()
+    raw = meta.get("label_ranges") if isinstance(meta, dict) else None
+    if isinstance(raw, dict):
+        for key in LABEL_KEYS:
+            v = raw.get(key)
+            if (isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(x, (int, float)) for x in v)
+                    and np.all(np.isfinite(v)) and v[0] <= v[1]):
+                out[key] = [float(v[0]), float(v[1])]
+    out["nu"] = [min(out["nu"][0], NU_MAX), min(out["nu"][1], NU_MAX)]
+    return out
+
+
+def normalised_bounds(meta: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(low (3,), high (3,)) of the label ranges in the model's normalised units."""
+    r = label_ranges(meta)
+    lo = normalize_physical(10.0 ** r["log10_E_pa"][0], r["nu"][0], 10.0 ** r["log10_density_kg_m3"][0])
+    hi = normalize_physical(10.0 ** r["log10_E_pa"][1], r["nu"][1], 10.0 ** r["log10_density_kg_m3"][1])
+    return lo.astype(np.float32), hi.astype(np.float32)
+
+
+# In-distribution score: RMS z-score d of an object's grid statistics against the training objects';
+# exp(-½ (d - OOD_FREE_Z)²) above OOD_FREE_Z, 1 below.
+OOD_FREE_Z = 1.5
+GUESS_THRESHOLD = 0.5  # mean confidence under which annotate calls the materials a guess
+
+
+def object_feature_summary(values, occupied):
+    """(B, C+1) per-object statistics of full grid tensors: the mean of every channel over occupied
+    voxels and log10 of the occupied share. Used for the out-of-distribution score."""
+    import torch
+
+    occ = occupied.float()
+    count = occ.flatten(1).sum(1).clamp_min(1.0)
+    means = (values.float() * occ[:, None]).flatten(2).sum(2) / count[:, None]
+    share = torch.log10(count / occ[0].numel())
+    return torch.cat([means, share[:, None]], 1)
+
+
+def in_distribution_score(meta: dict, summary: np.ndarray) -> float:
+    """1 when an object's `object_feature_summary` lies within OOD_FREE_Z (RMS z-score) of the training
+    objects' statistics stored in the checkpoint (meta["feature_stats"]), decaying beyond; 1 for a
+    checkpoint without statistics."""
+    stats = meta.get("feature_stats") if isinstance(meta, dict) else None
+    try:
+        mu = np.asarray(stats["mean"], np.float64)
+        sd = np.maximum(np.asarray(stats["std"], np.float64), 1e-3)
+    except (TypeError, KeyError, ValueError):
+        return 1.0
+    f = np.asarray(summary, np.float64).reshape(-1)
+    if mu.shape != f.shape or sd.shape != f.shape:
+        return 1.0
+    d = float(np.sqrt(np.mean(((f - mu) / sd) ** 2)))
+    return float(np.exp(-0.5 * max(0.0, d - OOD_FREE_Z) ** 2))
+
+
+def voxel_confidence(logits, occupied):
+    """(B,N,N,N) probability of the chosen class among the material classes (softmax without background)."""
+    import torch
+
+    p = torch.softmax(logits.float()[:, :BACKGROUND], dim=1)
+    return torch.where(occupied, p.max(dim=1).values, torch.zeros_like(p[:, 0]))
+
+
+def _forward(loaded: LoadedModel, values, channel_names: list[str]):
+    """Raw (logits, physical clamped to the label ranges) of full grid tensors."""
     import torch
 
     x = select_inputs(values, channel_names, loaded.config.input_channels)
@@ -52,7 +131,20 @@ def run_model(loaded: LoadedModel, values, channel_names: list[str], occupied):
                 logits, physical = loaded.model(x)
         else:
             logits, physical = loaded.model(x.contiguous(memory_format=torch.channels_last_3d))
-    return classes_from_logits(logits.float(), occupied), physical.float().clamp(-1.5, 1.5)
+    lo, hi = normalised_bounds(loaded.meta)
+    shape = (1, 3) + (1,) * (physical.dim() - 2)
+    lo_t = torch.as_tensor(lo, device=physical.device).view(shape)
+    hi_t = torch.as_tensor(hi, device=physical.device).view(shape)
+    return logits.float(), torch.maximum(torch.minimum(physical.float(), hi_t), lo_t)
+
+
+def run_model(loaded: LoadedModel, values, channel_names: list[str], occupied):
+    """(classes (B,N,N,N) long, physical (B,3,N,N,N) float32) from full grid tensors on the model's device.
+
+    The physical outputs are clamped to the checkpoint's label ranges (`label_ranges`), so E, ν, ρ never
+    leave the values the network was trained on (a raw head can extrapolate to E above diamond's)."""
+    logits, physical = _forward(loaded, values, channel_names)
+    return classes_from_logits(logits, occupied), physical
 
 
 def predict_materials(loaded: LoadedModel, cloud: SplatCloud, device: str = "cpu", up="z",
@@ -66,6 +158,10 @@ def predict_materials(loaded: LoadedModel, cloud: SplatCloud, device: str = "cpu
                         filter_voxels=spec.filter_voxels, margin=spec.margin, up=up, box=box)
     values = torch.as_tensor(grid.values, device=device)[None]
     occupied = torch.as_tensor(grid.occupancy, device=device)[None]
-    classes, physical = run_model(loaded, values, grid.channels, occupied)
+    logits, physical = _forward(loaded, values, grid.channels)
+    classes = classes_from_logits(logits, occupied)
+    ind = in_distribution_score(loaded.meta, object_feature_summary(values, occupied)[0].cpu().numpy())
+    conf = voxel_confidence(logits, occupied)[0].cpu().numpy() * np.float32(ind)
     return MaterialGrid(classes=classes[0].cpu().numpy(), physical=physical[0].cpu().numpy(),
-                        occupancy=grid.occupancy, grid=grid)
+                        occupancy=grid.occupancy, grid=grid, confidence=conf.astype(np.float32),
+                        in_distribution=ind)

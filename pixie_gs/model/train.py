@@ -19,7 +19,7 @@ from ..progress import progress, stage
 from .batch import AugmentConfig, build_batch
 from .checkpoint import FeatureSpec, LoadedModel, save_checkpoint, state_path
 from .evaluate import evaluate_store
-from .predict import grid_channel_names, select_inputs
+from .predict import grid_channel_names, object_feature_summary, select_inputs
 from .unet import MaterialUNet, ModelConfig, masked_loss
 
 
@@ -56,6 +56,28 @@ def val_score(summary: dict) -> float:
     return summary["voxel"]["accuracy"] - summary["voxel"]["mse_avg"]
 
 
+FEATURE_STATS_OBJECTS = 2000  # training objects whose grid statistics are stored in the checkpoint
+
+
+def training_label_ranges(records) -> dict[str, list[float]]:
+    """(low, high) of the training labels in log10 E (Pa), ν, log10 ρ (kg/m³): stored in the checkpoint,
+    and every prediction is clamped to them (pixie_gs/model/predict.py)."""
+    import numpy as np
+
+    from ..materials import denormalize_physical
+
+    phys = np.concatenate([r.physical for r in records])
+    lo, hi = phys.min(0), phys.max(0)
+    e_lo, nu_lo, r_lo = denormalize_physical(lo)
+    e_hi, nu_hi, r_hi = denormalize_physical(hi)
+
+    def pair(a: float, b: float) -> list[float]:  # widened outwards at the 4th decimal
+        return [math.floor(float(a) * 1e4) / 1e4, math.ceil(float(b) * 1e4) / 1e4]
+
+    return {"log10_E_pa": pair(np.log10(e_lo), np.log10(e_hi)), "nu": pair(nu_lo, nu_hi),
+            "log10_density_kg_m3": pair(np.log10(r_lo), np.log10(r_hi))}
+
+
 def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str = "cpu", resume: bool = False,
           log_path: str | Path | None = None) -> dict:
     """Train on `data_dir`'s train split, validate on val, keep the best weights at `out`; returns the meta."""
@@ -78,6 +100,7 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
     extra = list(state["extra_names"]) if state else None
     train_records, extra = load_split(data_dir, "train", extra, cfg.limit_train, cfg.workers)
     val_records, _ = load_split(data_dir, "val", extra, cfg.limit_val, cfg.workers)
+    ranges = training_label_ranges(train_records)
     train_store = DeviceStore(train_records, device)
     val_store = DeviceStore(val_records, device)
     del train_records, val_records
@@ -104,10 +127,11 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
     if use_amp:
         torch.backends.cudnn.benchmark = True
     meta = {"train_config": asdict(cfg), "train_objects": len(train_store), "val_objects": len(val_store),
-            "data_dir": str(data_dir), "history": history}
+            "data_dir": str(data_dir), "history": history, "label_ranges": ranges}
     stage(f"training {sum(p.numel() for p in model.parameters())} parameters on {device}: "
           f"{len(train_store)} train / {len(val_store)} val objects, inputs={cfg.input_mode} ({len(inputs)} channels)")
     t_train = time.perf_counter()
+    summaries: list = []  # per-object grid statistics of the first batches (out-of-distribution score)
     val_seconds = 0.0
     out_of_time = False
     for epoch in range(start_epoch, cfg.epochs):
@@ -124,6 +148,8 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
             for g in opt.param_groups:
                 g["lr"] = learning_rate(cfg, step, total_steps, elapsed)
             batch = build_batch(train_store, ids, spec, aug, gen)
+            if len(summaries) * cfg.batch_size < FEATURE_STATS_OBJECTS:
+                summaries.append(object_feature_summary(batch.inputs, batch.occupied).float().cpu())
             x = select_inputs(batch.inputs, names, inputs)
             with torch.autocast("cuda", dtype=torch.bfloat16, enabled=use_amp):
                 logits, physical = model(x)
@@ -140,6 +166,11 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
                 sums[k] += v
         if done == 0:
             break
+        if summaries and "feature_stats" not in meta:
+            f = torch.cat(summaries).double()
+            meta["feature_stats"] = {"channels": names + ["log10_occupied_share"], "objects": int(len(f)),
+                                     "mean": [round(float(v), 6) for v in f.mean(0)],
+                                     "std": [round(float(v), 6) for v in f.std(0)]}
         tv = time.perf_counter()
         model.eval()
         summary = evaluate_store(LoadedModel(model, mcfg, spec, {}, ""), val_store, per_gaussian=False,

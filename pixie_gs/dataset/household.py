@@ -1,0 +1,327 @@
+"""Geometry recipes of everyday objects (issue 12): wooden furniture and instruments, ceramic and glass
+ware, bottles, plastic toys, cushions, stones, bread, fruit, cardboard and books.
+
+Same conventions as shapes.py: metres, z up, objects stand on z = 0 centred on x = y = 0, one
+`Piece` per coloured mesh; closed meshes may be filled. Importing this module registers the recipes.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import trimesh
+
+from .primitives import box, concatenate, ellipsoid, lathe, tapered_segment
+from .shapes import Piece, _round, jitter, pick, recipe
+
+WOODS = [(0.55, 0.38, 0.22), (0.45, 0.30, 0.18), (0.68, 0.52, 0.34), (0.35, 0.22, 0.13), (0.78, 0.64, 0.45),
+         (0.25, 0.16, 0.10)]
+PAINTED_WOOD = [(0.92, 0.92, 0.90), (0.15, 0.15, 0.16), (0.30, 0.40, 0.55)]
+CERAMIC = [(0.95, 0.95, 0.93), (0.90, 0.88, 0.82), (0.30, 0.45, 0.70), (0.75, 0.35, 0.25), (0.20, 0.22, 0.25),
+           (0.60, 0.75, 0.65), (0.85, 0.80, 0.60)]
+GLASS = [(0.35, 0.55, 0.35), (0.45, 0.30, 0.15), (0.80, 0.85, 0.85), (0.25, 0.40, 0.60)]
+PLASTIC = [(0.95, 0.20, 0.20), (0.15, 0.45, 0.90), (0.98, 0.85, 0.10), (0.20, 0.75, 0.35), (0.98, 0.98, 0.98),
+           (0.95, 0.50, 0.10), (0.55, 0.25, 0.75)]
+STEEL = [(0.70, 0.72, 0.75), (0.55, 0.57, 0.60), (0.82, 0.83, 0.85), (0.20, 0.20, 0.22)]
+FABRIC = [(0.70, 0.25, 0.25), (0.30, 0.40, 0.60), (0.85, 0.80, 0.70), (0.40, 0.55, 0.40), (0.55, 0.45, 0.60),
+          (0.90, 0.70, 0.30), (0.50, 0.50, 0.52)]
+STONE = [(0.50, 0.50, 0.48), (0.42, 0.40, 0.37), (0.62, 0.58, 0.52), (0.35, 0.35, 0.36), (0.58, 0.50, 0.42)]
+CRUST = [(0.72, 0.48, 0.22), (0.60, 0.38, 0.18), (0.80, 0.60, 0.32), (0.50, 0.30, 0.15)]
+ICING = [(0.95, 0.60, 0.75), (0.40, 0.25, 0.15), (0.97, 0.95, 0.92), (0.90, 0.80, 0.30)]
+FRUIT = [(0.80, 0.10, 0.12), (0.95, 0.55, 0.10), (0.55, 0.75, 0.20), (0.95, 0.85, 0.25), (0.45, 0.15, 0.35)]
+CARDBOARD = [(0.70, 0.55, 0.38), (0.62, 0.48, 0.32), (0.78, 0.65, 0.48)]
+PAPER = [(0.95, 0.94, 0.90), (0.90, 0.88, 0.80)]
+COVERS = [(0.60, 0.10, 0.12), (0.10, 0.25, 0.50), (0.15, 0.40, 0.20), (0.20, 0.20, 0.22), (0.85, 0.70, 0.30)]
+
+
+def _rot(axis, angle: float, centre=(0.0, 0.0, 0.0)) -> np.ndarray:
+    return trimesh.transformations.rotation_matrix(angle, axis, point=centre)
+
+
+# ------------------------------------------------------------------------------------ wood
+@recipe("table")
+def table(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
+    """Table 0.4–2 m long: a top slab on four legs (round top a third of the time), optional apron."""
+    h = rng.uniform(0.4, 0.8)
+    lx, ly = rng.uniform(0.5, 2.0), rng.uniform(0.4, 1.0)
+    t = rng.uniform(0.025, 0.06)
+    leg = rng.uniform(0.03, 0.07)
+    wood = jitter(rng, pick(rng, WOODS + PAINTED_WOOD[:1]), 0.08)
+    if rng.random() < 0.33:
+        top = lathe(np.array([lx / 2, lx / 2]), np.array([h - t, h]), 40)
+        spots = [(math.cos(a) * lx * 0.3, math.sin(a) * lx * 0.3) for a in np.arange(4) * math.pi / 2 + 0.7]
+    else:
+        top = box(np.array([lx, ly, t]), np.array([0, 0, h - t / 2]))
+        spots = [(sx * (lx / 2 - leg), sy * (ly / 2 - leg)) for sx in (-1, 1) for sy in (-1, 1)]
+    legs = [box(np.array([leg, leg, h - t]), np.array([x, y, (h - t) / 2])) for x, y in spots]
+    pieces = [Piece("wood", top, wood, 0.05), Piece("wood", concatenate(legs), jitter(rng, wood, 0.04), 0.05)]
+    return pieces, _round({"height_m": h, "length_m": lx, "width_m": ly})
+
+
+@recipe("chair")
+def chair(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
+    """Wooden chair: seat 0.35–0.5 m at 0.4–0.5 m, four legs, back rest with slats."""
+    s = rng.uniform(0.35, 0.5)
+    hs = rng.uniform(0.4, 0.5)
+    hb = rng.uniform(0.35, 0.55)
+    t, leg = rng.uniform(0.02, 0.04), rng.uniform(0.025, 0.045)
+    wood = jitter(rng, pick(rng, WOODS + PAINTED_WOOD), 0.08)
+    seat = box(np.array([s, s, t]), np.array([0, 0, hs - t / 2]))
+    legs = [box(np.array([leg, leg, hs - t]), np.array([sx * (s / 2 - leg), sy * (s / 2 - leg), (hs - t) / 2]))
+            for sx in (-1, 1) for sy in (-1, 1)]
+    posts = [box(np.array([leg, leg, hb]), np.array([-s / 2 + leg / 2, sy * (s / 2 - leg), hs + hb / 2]))
+             for sy in (-1, 1)]
+    slats = [box(np.array([t, s - 2 * leg, rng.uniform(0.04, 0.1)]), np.array([-s / 2 + leg / 2, 0, hs + hb * f]))
+             for f in np.linspace(0.4, 0.9, int(rng.integers(1, 4)))]
+    pieces = [Piece("wood", concatenate([seat] + legs), wood, 0.05),
+              Piece("wood", concatenate(posts + slats), jitter(rng, wood, 0.04), 0.05)]
+    return pieces, _round({"seat_m": s, "seat_height_m": hs})
+
+
+@recipe("guitar")
+def guitar(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
+    """Acoustic/electric guitar 0.9–1.1 m standing upright on its lower bout, with an optional
+    metal stand (a tubular A-frame behind it)."""
+    L = rng.uniform(0.9, 1.1)
+    depth = rng.uniform(0.05, 0.11)
+    lower, upper = rng.uniform(0.17, 0.21), rng.uniform(0.13, 0.16)
+    wood = jitter(rng, pick(rng, WOODS + [(0.85, 0.55, 0.20), (0.70, 0.15, 0.10), (0.10, 0.10, 0.10)]), 0.06)
+    base = 0.06 if "stand" in parts else 0.0
+    bout_lo = ellipsoid(np.array([0, 0, base + lower]), np.array([lower, depth / 2, lower * 0.95]), 2)
+    bout_hi = ellipsoid(np.array([0, 0, base + 1.9 * lower]), np.array([upper, depth / 2, upper * 0.9]), 2)
+    z_neck = base + 1.9 * lower + upper * 0.7
+    neck = box(np.array([0.05, 0.03, L - (z_neck - base)]), np.array([0, 0, (z_neck + base + L) / 2]))
+    head = box(np.array([0.08, 0.025, 0.16]), np.array([0, 0, base + L + 0.07]))
+    hole = lathe(np.array([0.045, 0.045]), np.array([0.0, 0.002]), 20, cap_bottom=True, cap_top=True)
+    hole.apply_transform(_rot([1, 0, 0], math.pi / 2))
+    hole.apply_transform(trimesh.transformations.translation_matrix([0, -depth / 2 - 0.002, base + 1.45 * lower]))
+    pieces = [Piece("body", bout_lo, wood, 0.04, fill=True), Piece("body", bout_hi, wood, 0.04, fill=True),
+              Piece("body", concatenate([neck, head]), jitter(rng, pick(rng, WOODS), 0.05), 0.04),
+              Piece("body", hole, (0.08, 0.06, 0.05), 0.02, weight=2.0)]
+    if "stand" in parts:
+        steel = jitter(rng, pick(rng, STEEL), 0.04)
+        r = 0.008
+        rails = [tapered_segment(np.array([sx * 0.18, 0.05, 0.0]), np.array([0, 0.12, 0.75 * L]), r, r, 8)
+                 for sx in (-1, 1)]
+        rails += [tapered_segment(np.array([-0.2, -0.05, base]), np.array([0.2, -0.05, base]), r, r, 8),
+                  tapered_segment(np.array([0, 0.05, 0.02]), np.array([0, 0.3, 0.0]), r, r, 8)]
+        pieces.append(Piece("stand", concatenate(rails), steel, 0.03, weight=1.5))
+    return pieces, _round({"length_m": L, "depth_m": depth, "stand": "stand" in parts})
+
+
+@recipe("picture_frame")
+def picture_frame(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
+    """Upright wooden frame 0.2–1 m with a picture (paper/canvas) inside; some stand on a foot."""
+    w, h = rng.uniform(0.2, 1.0), rng.uniform(0.2, 1.0)
+    b, d = rng.uniform(0.02, 0.07), rng.uniform(0.015, 0.04)
+    wood = jitter(rng, pick(rng, WOODS + PAINTED_WOOD), 0.06)
+    bars = [box(np.array([w, d, b]), np.array([0, 0, b / 2])), box(np.array([w, d, b]), np.array([0, 0, h - b / 2])),
+            box(np.array([b, d, h - 2 * b]), np.array([-w / 2 + b / 2, 0, h / 2])),
+            box(np.array([b, d, h - 2 * b]), np.array([w / 2 - b / 2, 0, h / 2]))]
+    pieces = [Piece("frame", concatenate(bars), wood, 0.05)]
+    if "picture" in parts:
+        pic = box(np.array([w - 2 * b, 0.004, h - 2 * b]), np.array([0, 0, h / 2]))
+        pieces.append(Piece("picture", pic, jitter(rng, tuple(rng.uniform(0.1, 0.9, 3)), 0.1), 0.15))
+    return pieces, _round({"width_m": w, "height_m": h, "bar_m": b})
+
+
+# ------------------------------------------------------------------------------------ ceramic, glass, bottles
+def _vessel(rng: np.random.Generator, height: float, radius: float, neck: float) -> trimesh.Trimesh:
+    """Shell of revolution: foot, belly, shoulder, neck to lip (open top)."""
+    belly = rng.uniform(0.3, 0.6)
+    r = radius * np.array([rng.uniform(0.5, 0.8), 1.0, rng.uniform(0.6, 1.0), neck, neck * rng.uniform(1.0, 1.3)])
+    z = height * np.array([0.0, belly, min(belly + 0.25, 0.85), 0.92, 1.0])
+    return lathe(r, z, 32, cap_bottom=True, cap_top=False)
+
+
+@recipe("vase")
+def vase(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
+    """Ceramic/porcelain vase 0.15–0.6 m (shell), plain or with a painted band."""
+    h = rng.uniform(0.15, 0.6)
+    r = h * rng.uniform(0.18, 0.4)
+    shell = _vessel(rng, h, r, rng.uniform(0.3, 0.8))
+    glaze = jitter(rng, pick(rng, CERAMIC), 0.05)
+    pieces = [Piece("body", shell, glaze, 0.03)]
+    if rng.random() < 0.4:
+        band = lathe(np.array([r * 1.01, r * 1.01]), h * np.array([0.4, 0.5]), 32, cap_bottom=False, cap_top=False)
+        pieces.append(Piece("body", band, jitter(rng, pick(rng, CERAMIC), 0.05), 0.03))
+    return pieces, _round({"height_m": h, "radius_m": r})
+
+
+@recipe("mug")
+def mug(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
+    """Ceramic mug or cup 7–12 cm (shell) with a handle; sometimes a bowl instead."""
+    h = rng.uniform(0.07, 0.12)
+    r = rng.uniform(0.035, 0.05)
+    glaze = jitter(rng, pick(rng, CERAMIC), 0.05)
+    if rng.random() < 0.3:  # bowl
+        shell = lathe(np.array([r * 0.8, r * 1.6, r * 2.0]), np.array([0.0, h * 0.4, h * 0.7]), 32, True, False)
+        return [Piece("body", shell, glaze, 0.03)], _round({"kind": "bowl", "radius_m": r})
+    shell = lathe(np.array([r * 0.9, r, r]), np.array([0.0, 0.01, h]), 32, True, False)
+    handle = trimesh.creation.torus(h * 0.28, h * 0.06, major_sections=24, minor_sections=8)
+    handle.apply_transform(_rot([1, 0, 0], math.pi / 2))
+    handle.apply_transform(trimesh.transformations.translation_matrix([r + h * 0.15, 0, h * 0.5]))
+    return [Piece("body", shell, glaze, 0.03), Piece("body", handle, glaze, 0.03)], _round({"kind": "mug", "radius_m": r})
+
+
+@recipe("bottle")
+def bottle(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
+    """Bottle 0.15–0.35 m (shell: body, shoulder, neck) with a cap and often a label band; a fifth
+    lie on their side. The colour palette comes from the part name (glass, plastic or metal)."""
+    h = rng.uniform(0.15, 0.35)
+    r = h * rng.uniform(0.12, 0.2)
+    neck = rng.uniform(0.25, 0.45)
+    (part,) = tuple(parts)
+    palette = {"glass": GLASS, "plastic": PLASTIC, "metal": STEEL + [(0.15, 0.35, 0.55), (0.60, 0.15, 0.15)]}
+    colour = jitter(rng, pick(rng, palette.get(part, GLASS)), 0.05)
+    sh = rng.uniform(0.55, 0.75)
+    body = lathe(r * np.array([0.95, 1.0, 1.0, neck, neck]), h * np.array([0.0, 0.02, sh, sh + 0.2, 0.93]), 32,
+                 True, False)
+    cap = lathe(np.full(2, r * neck * 1.1), h * np.array([0.93, 1.0]), 20)
+    pieces = [Piece(part, body, colour, 0.03), Piece(part, cap, jitter(rng, pick(rng, PLASTIC + STEEL), 0.05), 0.03)]
+    if rng.random() < 0.6:
+        band = lathe(np.full(2, r * 1.01), h * np.sort(rng.uniform(0.15, 0.55, 2)), 32, False, False)
+        pieces.append(Piece(part, band, jitter(rng, tuple(rng.uniform(0.1, 0.95, 3)), 0.05), 0.05))
+    lying = rng.random() < 0.2
+    if lying:
+        T = _rot([1, 0, 0], math.pi / 2)
+        T[:3, 3] = [0.0, h / 2, r]
+        for p in pieces:
+            p.mesh.apply_transform(T)
+    return pieces, _round({"height_m": h, "radius_m": r, "lying": lying})
+
+
+# ------------------------------------------------------------------------------------ soft and natural things
+@recipe("plastic_toy")
+def plastic_toy(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
+    """Hard-plastic toy bricks (2–8 stacked blocks with studs) or a toy car body."""
+    pieces = []
+    z = 0.0
+    u = rng.uniform(0.016, 0.04)
+    for k in range(int(rng.integers(2, 9))):
+        nx, ny = int(rng.integers(1, 4)), int(rng.integers(1, 3))
+        ext = np.array([nx * 2 * u, ny * 2 * u, 1.2 * u])
+        off = rng.uniform(-u, u, 2) * (k > 0)
+        blk = box(ext, np.array([off[0], off[1], z + ext[2] / 2]))
+        studs = [lathe(np.full(2, u * 0.3), np.array([z + ext[2], z + ext[2] + u * 0.35]), 12)
+                 for _ in range(1)]
+        for s, (i, j) in zip(studs, [(0, 0)]):
+            s.apply_transform(trimesh.transformations.translation_matrix([off[0], off[1], 0]))
+        pieces.append(Piece("toy", concatenate([blk] + studs), jitter(rng, pick(rng, PLASTIC), 0.04), 0.03))
+        z += ext[2]
+    return pieces, _round({"unit_m": u, "blocks": len(pieces)})
+
+
+@recipe("cushion")
+def cushion(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
+    """Fabric cushion or pillow 0.3–0.7 m (filled, puffy), lying or leaning; sometimes a folded blanket."""
+    a, b = rng.uniform(0.15, 0.35), rng.uniform(0.15, 0.35)
+    c = rng.uniform(0.05, 0.12)
+    fabric = jitter(rng, pick(rng, FABRIC), 0.06)
+    m = trimesh.creation.icosphere(2, 1.0)
+    v = m.vertices.copy()
+    v = np.sign(v) * np.abs(v) ** 0.6  # squarer than an ellipsoid
+    v *= np.array([a, b, c])
+    m = trimesh.Trimesh(v + np.array([0, 0, c]), m.faces.copy(), process=False)
+    lean = rng.random() < 0.3
+    if lean:
+        m.apply_transform(_rot([0, 1, 0], rng.uniform(0.8, 1.3), (0, 0, 0)))
+        m.apply_translation([0, 0, -m.vertices[:, 2].min()])
+    return [Piece("fabric", m, fabric, 0.06, fill=True)], _round({"half_size_m": [a, b, c], "leaning": lean})
+
+
+@recipe("stone")
+def stone(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
+    """A rock or boulder 0.1–1 m: a noisy, flattened icosphere (filled); sometimes a small cairn of 2–4."""
+    pieces = []
+    z = 0.0
+    count = 1 if rng.random() < 0.7 else int(rng.integers(2, 5))
+    size = rng.uniform(0.05, 0.5)
+    colour = jitter(rng, pick(rng, STONE), 0.08)
+    for k in range(count):
+        s = size * (0.8 ** k)
+        m = trimesh.creation.icosphere(2, 1.0)
+        d = m.vertices @ rng.normal(0, 1, (3, 4))
+        bump = 1.0 + 0.12 * np.tanh(d).sum(1) / 2 + rng.normal(0, 0.03, len(m.vertices))
+        v = m.vertices * bump[:, None] * s * np.array([1.0, rng.uniform(0.6, 1.0), rng.uniform(0.4, 0.8)])
+        v[:, 2] += z - v[:, 2].min()
+        z = v[:, 2].max() * 0.95
+        pieces.append(Piece("stone", trimesh.Trimesh(v, m.faces.copy(), process=False),
+                            jitter(rng, colour, 0.05), 0.08, fill=True))
+    return pieces, _round({"size_m": size, "count": count})
+
+
+@recipe("bread")
+def bread(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
+    """Baked goods, filled: a loaf or baguette (crust), a bun, or a doughnut ring with icing."""
+    kind = pick(rng, ["loaf", "baguette", "bun", "donut"])
+    crust = jitter(rng, pick(rng, CRUST), 0.06)
+    if kind == "donut":
+        R = rng.uniform(0.04, 0.07)
+        ring = trimesh.creation.torus(R, R * rng.uniform(0.4, 0.6), major_sections=32, minor_sections=16)
+        ring.apply_translation([0, 0, -ring.vertices[:, 2].min()])
+        pieces = [Piece("dough", ring, crust, 0.05, fill=True)]
+        if rng.random() < 0.7:
+            top = trimesh.creation.torus(R, R * 0.52, major_sections=32, minor_sections=16)
+            top.apply_translation([0, 0, -ring.vertices[:, 2].min() + R * 0.12 + 0.002])
+            keep = top.vertices[:, 2] > np.median(top.vertices[:, 2])
+            faces = top.faces[keep[top.faces].all(1)]
+            pieces.append(Piece("dough", trimesh.Trimesh(top.vertices, faces, process=False),
+                                jitter(rng, pick(rng, ICING), 0.05), 0.08, weight=1.5))
+        return pieces, _round({"kind": kind, "radius_m": R})
+    dims = {"loaf": (0.12, 0.07, 0.06), "baguette": (0.3, 0.035, 0.03), "bun": (0.05, 0.05, 0.035)}[kind]
+    r = np.array(dims) * rng.uniform(0.8, 1.25)
+    m = ellipsoid(np.array([0, 0, r[2]]), r, 2)
+    v = m.vertices.copy()
+    v[:, 2] = np.maximum(v[:, 2], r[2] * 0.35)  # flat bottom
+    m = trimesh.Trimesh(v, m.faces.copy(), process=False)
+    return [Piece("dough", m, crust, 0.06, fill=True)], _round({"kind": kind, "size_m": [float(x) for x in r]})
+
+
+@recipe("fruit")
+def fruit(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
+    """One to five pieces of fruit (apple, orange, pear-like), filled, with a small stalk."""
+    pieces = []
+    n = int(rng.integers(1, 6))
+    for k in range(n):
+        r = rng.uniform(0.03, 0.05)
+        c = np.array([rng.uniform(-0.08, 0.08) * (k > 0), rng.uniform(-0.08, 0.08) * (k > 0), r * 0.95])
+        m = ellipsoid(c, r * np.array([1.0, 1.0, rng.uniform(0.85, 1.15)]), 2)
+        pieces.append(Piece("flesh", m, jitter(rng, pick(rng, FRUIT), 0.08), 0.05, fill=True))
+        stalk = tapered_segment(c + np.array([0, 0, r * 0.9]), c + np.array([0, 0, r * 1.25]), 0.003, 0.002, 6)
+        pieces.append(Piece("flesh", stalk, (0.35, 0.25, 0.12), 0.03))
+    return pieces, _round({"pieces": n})
+
+
+@recipe("carton")
+def carton(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
+    """Cardboard box 0.15–0.7 m (shell), closed or with open flaps, with a tape stripe."""
+    ext = np.array([rng.uniform(0.15, 0.7), rng.uniform(0.15, 0.6), rng.uniform(0.1, 0.5)])
+    brown = jitter(rng, pick(rng, CARDBOARD), 0.05)
+    shell = box(ext, np.array([0, 0, ext[2] / 2]))
+    pieces = [Piece("cardboard", shell, brown, 0.05)]
+    tape = box(np.array([ext[0] * 1.002, 0.05, 0.002]), np.array([0, 0, ext[2] + 0.001]))
+    pieces.append(Piece("cardboard", tape, jitter(rng, (0.80, 0.70, 0.50), 0.05), 0.03))
+    return pieces, _round({"size_m": [float(x) for x in ext]})
+
+
+@recipe("books")
+def books(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
+    """A stack or a row of 1–8 books: paper block with a coloured cover (each filled)."""
+    pieces = []
+    upright = rng.random() < 0.5
+    pos = 0.0
+    n = int(rng.integers(1, 9))
+    for _ in range(n):
+        w, h, t = rng.uniform(0.12, 0.25), rng.uniform(0.17, 0.32), rng.uniform(0.01, 0.06)
+        if upright:
+            ext, centre = np.array([t, w, h]), np.array([pos + t / 2, 0, h / 2])
+            pos += t
+        else:
+            ext, centre = np.array([h, w, t]), np.array([rng.uniform(-0.02, 0.02), 0, pos + t / 2])
+            pos += t
+        cover = jitter(rng, pick(rng, COVERS), 0.06)
+        pieces.append(Piece("paper", box(ext, centre), cover, 0.04, fill=True))
+        pages = box(ext * np.array([0.96 if upright else 1.01, 1.01, 0.96 if not upright else 1.0]) * 0.99, centre)
+        pieces.append(Piece("paper", pages, jitter(rng, pick(rng, PAPER), 0.03), 0.03, weight=0.3))
+    return pieces, _round({"books": n, "upright": upright})
