@@ -34,7 +34,8 @@ from .scene import BOUNDARY_CELLS, Scene
 from .sort import cell_order, cell_runs, chunk_runs, permute_in_place
 
 CHUNK = 8  # particles per P2G thread while the particles are in no cell order (sort_every = 0)
-SORT_SUBSTEPS = 8  # with sorting on, the chunked P2G's cell order is refreshed every this many substeps
+SORT_SUBSTEPS = 4  # with sorting on, the chunked P2G's cell order is refreshed every this many substeps
+SORT_MIN_PARTICLES = 50_000  # on a GPU, smaller runs fit in cache and are launch-bound: no sorting
 
 FAR = 1.0e30  # "unbounded" for regions and time windows passed to kernels
 MAX_STRETCH = 1.0e3  # ‖F‖ or 1/J beyond this counts as diverged
@@ -64,16 +65,17 @@ class MPMSolver:
     after each kernel launch: benchmarks time kernels with it).
     The scene is read once, at construction; build a new solver to change it.
     `sort_every`: re-sort the particle arrays into cell order every this many frames (0: keep
-    the caller's order, never sort); inside a frame the chunked P2G gets a fresh cell order (an
+    the caller's order, never sort; None: every frame, except on a GPU below SORT_MIN_PARTICLES); inside a frame the chunked P2G gets a fresh cell order (an
     index, the arrays stay put) every SORT_SUBSTEPS substeps. Sorted and unsorted runs agree to
     float rounding.
     The Warp arrays (x, v, F, ...) are in slot order; use the accessors for the caller's order.
     `p2g`: "chunked" (one thread per run of same-cell particles sums them before touching the
     grid, kernels.p2g_chunked), "atomic" (one global atomic per particle and node, kernels.p2g, the
-    plain reference) or "auto" (chunked on a GPU, atomic on the CPU, where it measured faster).
+    plain reference) or "auto" (chunked on a GPU when sorting, else atomic; on the CPU atomic
+    measured faster).
     """
 
-    def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int = 1,
+    def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int | None = None,
                  p2g: str = "auto") -> None:
         particles.validate()
         self.scene = scene
@@ -84,10 +86,14 @@ class MPMSolver:
         self.substeps_last_frame = 0
         self.particle_substeps = 0
         self.stiffness_scale = 1.0
+        if sort_every is None:
+            sort_every = 1 if self.device == "cpu" or self.n >= SORT_MIN_PARTICLES else 0
         self.sort_every = int(sort_every)
         if p2g not in ("auto", "chunked", "atomic"):
             raise ValueError(f"p2g must be 'auto', 'chunked' or 'atomic', got {p2g!r}")
-        self.p2g_kind = ("atomic" if self.device == "cpu" else "chunked") if p2g == "auto" else p2g
+        if p2g == "auto":
+            p2g = "chunked" if self.device != "cpu" and self.sort_every > 0 else "atomic"
+        self.p2g_kind = p2g
         self.timing: dict[str, float] = {}
         self.kernel_timer = None
         self._impulse_done = [False] * len(scene.impulses)
