@@ -41,8 +41,38 @@ def pack(idx: np.ndarray) -> np.ndarray:
     return (off[:, 0] << 42) | (off[:, 1] << 21) | off[:, 2]
 
 
+DENSE_CELLS = 24_000_000  # grids up to this many cells are counted densely (no sort): O(N + cells)
+
+
+def dense_grid(points: np.ndarray, cell: float) -> tuple[np.ndarray, tuple[int, int, int]] | None:
+    """(flat cell index (N,) int64, grid shape) when the points' cell grid is small enough to hold
+    densely (≤ DENSE_CELLS cells, one cell of margin on each side), else None."""
+    idx = np.floor(points / cell).astype(np.int64)  # the same cells as `cell_keys`
+    idx -= idx.min(axis=0) - 1
+    shape = tuple(int(v) + 2 for v in idx.max(axis=0))
+    if int(np.prod(shape, dtype=np.float64)) > DENSE_CELLS:
+        return None
+    return (idx[:, 0] * shape[1] + idx[:, 1]) * shape[2] + idx[:, 2], shape
+
+
+def box3_sum(grid: np.ndarray) -> np.ndarray:
+    """Sum of each cell's 3×3×3 block (zero outside), as three separable passes."""
+    out = grid
+    for axis in range(3):
+        padded = np.pad(out, [(1, 1) if a == axis else (0, 0) for a in range(3)])
+        n = out.shape[axis]
+        take = lambda start: np.take(padded, np.arange(start, start + n), axis=axis)  # noqa: E731
+        out = take(0) + take(1) + take(2)
+    return out
+
+
 def block_sums(points: np.ndarray, weights: np.ndarray, cell: float) -> np.ndarray:
     """For each point, the sum of `weights` over every point in its 3×3×3 block of cells (N,)."""
+    dense = dense_grid(points, cell)
+    if dense is not None:
+        lin, shape = dense
+        grid = np.bincount(lin, weights=weights, minlength=int(np.prod(shape))).reshape(shape)
+        return box3_sum(grid).reshape(-1)[lin]
     idx, keys = cell_keys(points, cell)
     uniq, inverse = np.unique(keys, return_inverse=True)
     per_cell = np.bincount(inverse.reshape(-1), weights=weights, minlength=len(uniq))

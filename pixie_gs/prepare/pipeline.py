@@ -16,11 +16,12 @@ from .orient import estimate_orientation
 from .objects import Crop, components, fit_box, parse_crop, pick_objects, robust_box
 from .scene import (ROLE_BACKGROUND, ROLE_FLOATER, ROLE_GROUND, ROLE_NAMES, ROLE_OBJECT, PreparedObject,
                     PreparedScene)
-from .updir import declared_up, nearest_axis, parse_up, rotation_to_z
+from .updir import declared_up, nearest_axis, parse_up, rotation_to_z, turn
 
 LOW_CONFIDENCE = 0.06  # below this the estimate is not trusted and +z is kept
 SNAP_DEG = 6.0  # an estimate this close to a file axis is taken as that axis (capture tools align files with gravity)
 SNAP_TALL_DEG = 12.0  # … and for a tall object's long axis (guitars on stands, bottles against a wall lean)
+ESTIMATE_SAMPLE = 40_000  # Gaussians the up estimate looks at
 TINY_COMPONENT = 0.002  # share of the Gaussians below which a cluster away from objects is a floater
 
 
@@ -55,7 +56,10 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
         keep &= crop_obj.contains(x)
     # ---- up and the support plane
     if given is None:
-        est = estimate_orientation(x[keep], alpha[keep], cloud.rotations[keep], cloud.log_scales[keep], spacing,
+        pick = np.nonzero(keep)[0]
+        if len(pick) > ESTIMATE_SAMPLE:  # the estimate looks at a fixed-size sample: cost independent of N
+            pick = np.sort(np.random.default_rng(seed + 1).choice(pick, ESTIMATE_SAMPLE, replace=False))
+        est = estimate_orientation(x[pick], alpha[pick], cloud.rotations[pick], cloud.log_scales[pick], spacing,
                                    seed=seed)
         u, method, confidence = est.up, est.method, est.confidence
         axis, angle = nearest_axis(u)
@@ -76,9 +80,9 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
     if is_ground and given is None:
         method = f"ground-plane ({method})"
     R = rotation_to_z(u)
-    xu = x @ R.T
+    xu = turn(x, R)
     # ---- ground
-    lo_all, hi_all = np.percentile(xu[keep], [1, 99], axis=0)
+    lo_all, hi_all = np.percentile(xu[sub], [1, 99], axis=0)
     tol = max(1.5 * spacing, 0.006 * float(np.linalg.norm(hi_all - lo_all)))
     ground_height = None
     ground_extent = None
@@ -89,7 +93,7 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
         role[on_ground] = ROLE_GROUND
         keep &= ~(on_ground | below)
         ground_height = float(base)
-        glo, ghi = robust_box(xu[on_ground][:, :2], 1.0)
+        glo, ghi = robust_box(xu[on_ground][:, :2], q=1.0)
         ground_extent = _box(glo, ghi)
     # ---- objects
     object_id = np.full(n, -1, np.int32)
@@ -104,7 +108,7 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
         elif crop_obj is not None:
             obj = np.zeros(len(idx), np.int32)
         else:
-            centre = np.median(xu[idx], axis=0)
+            centre = np.median(xu[idx[:: max(1, len(idx) // 200_000)]], axis=0)
             obj = pick_objects(xu[idx], alpha[idx], labels, centre)
         object_id[idx] = obj
         role[idx[obj >= 0]] = ROLE_OBJECT
@@ -117,8 +121,8 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
     objects = []
     for k in range(int(object_id.max()) + 1 if (object_id >= 0).any() else 0):
         m = object_id == k
-        flo, fhi = fit_box(xu[m])
-        objects.append(PreparedObject(k, int(m.sum()), _box(*robust_box(x[m])), _box(*robust_box(xu[m])),
+        flo, fhi = fit_box(xu, mask=m)
+        objects.append(PreparedObject(k, int(m.sum()), _box(*robust_box(x, m)), _box(*robust_box(xu, m)),
                                       _box(flo, fhi)))
     axis, angle = nearest_axis(u)
     scene = PreparedScene(
