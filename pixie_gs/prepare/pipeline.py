@@ -88,6 +88,11 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
     ground_extent = None
     if is_ground and crop_obj is None or (is_ground and crop_obj is not None and crop_obj.kind == "point"):
         h = xu[:, 2] - base
+        size_all = float(np.linalg.norm(hi_all - lo_all)) or 1.0
+        band = np.abs(h[sub]) < tol
+        if band.any():  # the floor's own thickness: a thin, exact plane (a mesh) keeps what stands on it
+            thick = 2.0 * float(np.percentile(np.abs(h[sub][band]), 95))
+            tol = float(np.clip(thick, 1e-4 * size_all, tol))
         on_ground = keep & (np.abs(h) < tol)
         below = keep & (h <= -tol)
         role[on_ground] = ROLE_GROUND
