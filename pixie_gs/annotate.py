@@ -56,6 +56,7 @@ def annotate_cloud(cloud: SplatCloud, checkpoint: str | Path | None = None, devi
         mat, phys, conf = _per_gaussian(mgrid)
         out = write_materials(cloud, mat, phys)
         out.set("confidence", conf)
+        _require_finite(out, cloud.source)
         _say_confidence([(None, conf, mgrid.in_distribution)])
         return (out, mgrid) if return_grid else out
     return _annotate_prepared(cloud, loaded, dev, prepared, return_grid)
@@ -90,8 +91,17 @@ def _annotate_prepared(cloud: SplatCloud, loaded, dev: str, prepared, return_gri
         first_grid = first_grid or mgrid
     out = write_materials(cloud, mat, phys)
     out.set("confidence", conf)
+    _require_finite(out, cloud.source)
     _say_confidence(summaries)
     return (out, first_grid) if return_grid else out
+
+
+def _require_finite(out: SplatCloud, source: str | None) -> None:
+    """ComputationError (exit 3) when a prediction is NaN/inf: never written, never reported as success."""
+    from .errors import require_finite_result
+
+    require_finite_result({name: out.get(name) for name in ("E", "nu", "density", "confidence")},
+                          "predicted materials", source)
 
 
 def _per_gaussian(mgrid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

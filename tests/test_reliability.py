@@ -404,6 +404,7 @@ def _wait_for_staging(tmp_path: Path, proc: subprocess.Popen, frames: int = 2, t
         if staged and len(list(staged[0].glob("frame_*.ply"))) >= frames:
             return
         time.sleep(0.05)
+    proc.kill()
     pytest.fail(f"simulate never got going: {proc.poll()} {proc.stderr.read() if proc.poll() is not None else ''}")
 
 
