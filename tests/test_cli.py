@@ -27,6 +27,7 @@ BAD_ARGUMENTS = {
     "prepare": (["missing.ply", "out.ply"], 1, "missing.ply"),
     "annotate": (["missing.ply", "out.ply"], 1, "missing.ply"),
     "simulate": (["missing.ply", "--out", "frames"], 1, "missing.ply"),
+    "render": (["missing.ply", "--out", "picture.png"], 1, "missing.ply"),
     "diagnose": (["missing.ply", "missing.npz", "--scene", "missing.json", "--out", "diag"], 1, "missing.ply"),
 }
 

@@ -23,9 +23,8 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
         "by side: colour (the splat's own colour), material (predicted class), logE (log10 Young's modulus), "
         "confidence (if the file has it). A file is orbited (or drawn once for .png); frames are drawn from a "
         "still camera that frames the whole run (a .png shows a strip of evenly spaced frames).",
-        epilog="examples: pixie render annotated.ply --out orbit.mp4 --up y ; "
-        "pixie render frames/ --out run.gif --modes colour,material ; "
-        "pixie render scene.ply --camera cameras.json --out view.png",
+        epilog="example: pixie render annotated.ply --out orbit.mp4 --up y   (also: pixie render frames/ --out "
+        "run.gif --modes colour,material; pixie render scene.ply --camera cameras.json --out view.png)",
     )
     p.add_argument("input", metavar="IN", help="splat file, or a directory of frame_*.ply")
     p.add_argument("--out", required=True, metavar="FILE", help="output .mp4, .gif or .png")
