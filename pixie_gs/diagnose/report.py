@@ -183,6 +183,9 @@ def plot_gap(path: Path, diagnosis: Diagnosis, after: np.ndarray, regions: list[
     label = " + ".join(s.label for s in diagnosis.accepted) or "no effect added"
     ax.plot(tr.t, fa, "o-", ms=3, color="tab:green", label=f"with {label}")
     ax.axhline(np.sqrt(3) * diagnosis.noise_sigma, color="grey", ls="--", lw=1, label="tracking noise")
+    if diagnosis.floor is not None and diagnosis.floor.enabled:
+        ax.axhline(diagnosis.floor.rms, color="tab:purple", ls=":", lw=1.2,
+                   label=f"solver-error floor (grid {diagnosis.floor.grid})")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("RMS gap (splat units)")
     ax.set_title("where in time")
