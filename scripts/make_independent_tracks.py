@@ -54,6 +54,7 @@ CASES: dict[str, dict] = {
     "part_density": {"density_scale_head": 4.0},         # head 4× heavier
     "plastic_yield": {"yield_body_pa": 20.0},            # von Mises yield of the body (Pa)
     "anchored_part": {"anchor_body": True},              # body glued to the ground
+    "part_stiffness_body": {"E_scale_body": 0.2},        # body 5× softer than believed
 }
 
 
@@ -95,7 +96,7 @@ def run_engine(effect: dict, grid: int, tracers_world: np.ndarray, scale: float,
     inv_dx = 1.0 / dx
     xs, part, vol = lattice(scale, offset, dx)
     n, m = len(xs), len(tracers_world)
-    E = np.array(E_PA)[part] * np.where(part == 1, effect.get("E_scale_head", 1.0), 1.0)
+    E = np.array(E_PA)[part] * np.where(part == 1, effect.get("E_scale_head", 1.0), effect.get("E_scale_body", 1.0))
     rho = np.array(RHO)[part] * np.where(part == 1, effect.get("density_scale_head", 1.0), 1.0)
     mu_np = E / (2 * (1 + NU))
     lam_np = E * NU / ((1 + NU) * (1 - 2 * NU))
