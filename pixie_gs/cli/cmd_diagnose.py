@@ -168,7 +168,8 @@ def print_summary(s: dict) -> None:
           f"({100 * s['gap_reduction']:.0f}% smaller); tracking noise σ ≈ {s['noise_sigma']:.2g}{floor}")
     if s.get("note"):
         print(f"note: {s['note']}")
-    print("ranking (round 1, ΔBIC vs the model as given):")
+    if s["ranking"]:
+        print("ranking (round 1, ΔBIC vs the model as given):")
     for r in s["ranking"]:
         part = f"[part {r['part']}]" if r["part"] is not None else ""
         print(f"  {r['effect'] + part:28s} {r['score']:10.1f}  explains {100 * r['explained']:5.1f}%"

@@ -211,6 +211,11 @@ def plot_gap(path: Path, diagnosis: Diagnosis, after: np.ndarray, regions: list[
     ax.set_title("which effect (green: chosen, light: significant alone)", fontsize=10)
     if scores and max(scores) > 100:
         ax.set_xscale("symlog")
+    if not ranking:
+        ax.set_axis_off()
+        why = "not converged: the gap is solver error,\nno effect was fitted" if not diagnosis.converged \
+            else "no candidate effect was fitted"
+        ax.text(0.5, 0.5, why, ha="center", va="center", transform=ax.transAxes, fontsize=10)
     fig.tight_layout()
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")
