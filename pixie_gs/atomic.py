@@ -48,6 +48,7 @@ def check_distinct_output(inp: str | Path, out: str | Path, force: bool = False)
 
 # ---------------------------------------------------------------------------------- staged folders
 STAGING_TAG = ".pixie-staging-"
+_LIVE_STAGING: set[Path] = set()  # staging folders of this process not yet committed or aborted
 
 
 def exchange_paths(a: Path, b: Path) -> bool:
@@ -107,6 +108,23 @@ def remove_stale_staging(target: Path) -> None:
                 shutil.rmtree(entry, ignore_errors=True)
 
 
+@contextlib.contextmanager
+def _signals_deferred() -> Iterator[None]:
+    """Hold SIGINT/SIGTERM until the block ends (they are then delivered as usual), so a step that
+    creates something and records it cannot be split by a signal. No-op off the main thread/POSIX."""
+    import signal
+    import threading
+
+    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 class StagedDirectory:
     """Build a folder's new content beside it, then swap it in whole.
 
@@ -122,11 +140,17 @@ class StagedDirectory:
         if not self.target.parent.is_dir():
             raise InputError("parent directory does not exist", self.target.parent)
         remove_stale_staging(self.target)
-        self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}{STAGING_TAG}{os.getpid()}-",
-                                          dir=self.target.parent))
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(self.path, 0o777 & ~umask)
+        with _signals_deferred():  # a Ctrl-C/SIGTERM between mkdir and registration would orphan the folder
+            self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}{STAGING_TAG}{os.getpid()}-",
+                                              dir=self.target.parent))
+            _LIVE_STAGING.add(self.path)
+        try:
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(self.path, 0o777 & ~umask)
+        except BaseException:
+            self.abort()
+            raise
 
     def commit(self, keep=lambda name: False) -> Path:
         import shutil
@@ -137,15 +161,30 @@ class StagedDirectory:
         for entry in self.target.iterdir():
             if keep(entry.name):
                 os.link(entry, self.path / entry.name, follow_symlinks=False)
-        if not exchange_paths(self.path, self.target):
-            old = self.path.with_name(self.path.name + "-old")
-            os.rename(self.target, old)
-            os.rename(self.path, self.target)
-            self.path = old
+        with _signals_deferred():  # the swap and the bookkeeping of what self.path now holds go together
+            if not exchange_paths(self.path, self.target):
+                old = self.path.with_name(self.path.name + "-old")
+                os.rename(self.target, old)
+                os.rename(self.path, self.target)
+                _LIVE_STAGING.discard(self.path)
+                self.path = old
+                _LIVE_STAGING.add(old)
         shutil.rmtree(self.path, ignore_errors=True)  # now the previous content
+        _LIVE_STAGING.discard(self.path)
         return self.target
 
     def abort(self) -> None:
         import shutil
 
         shutil.rmtree(self.path, ignore_errors=True)
+        _LIVE_STAGING.discard(self.path)
+
+
+def remove_live_staging() -> None:
+    """Delete every staging folder of this process that was neither committed nor aborted (called by
+    the CLI when a command ends, so even a signal between two statements leaves nothing behind)."""
+    import shutil
+
+    for path in list(_LIVE_STAGING):
+        shutil.rmtree(path, ignore_errors=True)
+        _LIVE_STAGING.discard(path)

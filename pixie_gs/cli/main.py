@@ -86,6 +86,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"pixie {args.command}: error: {os_error_text(exc)}", file=sys.stderr)
         return 1
     finally:
+        from ..atomic import remove_live_staging
+
+        remove_live_staging()  # a signal between two statements must not orphan a staging folder
         _restore_sigterm(previous)
     return int(result or 0)
 

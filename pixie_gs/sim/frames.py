@@ -133,11 +133,15 @@ class FrameWriter:
         self.base = cloud.copy()
         self.cov0 = cloud.covariances()
         self.written: list[Path] = []
-        self.staging = StagedDirectory(self.out_dir)
         self.positions = None
-        if frames is not None:
-            self.positions = np.lib.format.open_memmap(self.staging.path / _TRACK_BUFFER, mode="w+",
-                                                       dtype=np.float32, shape=(int(frames), len(cloud), 3))
+        self.staging = StagedDirectory(self.out_dir)
+        try:  # from here on, any failure or signal removes the staging folder
+            if frames is not None:
+                self.positions = np.lib.format.open_memmap(self.staging.path / _TRACK_BUFFER, mode="w+",
+                                                           dtype=np.float32, shape=(int(frames), len(cloud), 3))
+        except BaseException:
+            self.abort()
+            raise
 
     @property
     def stage_dir(self) -> Path:
