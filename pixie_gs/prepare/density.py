@@ -41,7 +41,8 @@ def pack(idx: np.ndarray) -> np.ndarray:
     return (off[:, 0] << 42) | (off[:, 1] << 21) | off[:, 2]
 
 
-DENSE_CELLS = 24_000_000  # grids up to this many cells are counted densely (no sort): O(N + cells)
+DENSE_CELLS = 24_000_000  # grids up to this many cells (and ≤ DENSE_PER_POINT × N) are counted densely (no sort)
+DENSE_PER_POINT = 8  # a sprawling capture (far floaters) has a sparse grid: the sorted-key path is cheaper
 
 
 def dense_grid(points: np.ndarray, cell: float) -> tuple[np.ndarray, tuple[int, int, int]] | None:
@@ -50,19 +51,22 @@ def dense_grid(points: np.ndarray, cell: float) -> tuple[np.ndarray, tuple[int, 
     idx = np.floor(points / cell).astype(np.int64)  # the same cells as `cell_keys`
     idx -= idx.min(axis=0) - 1
     shape = tuple(int(v) + 2 for v in idx.max(axis=0))
-    if int(np.prod(shape, dtype=np.float64)) > DENSE_CELLS:
+    if int(np.prod(shape, dtype=np.float64)) > min(DENSE_CELLS, DENSE_PER_POINT * len(points)):
         return None
     return (idx[:, 0] * shape[1] + idx[:, 1]) * shape[2] + idx[:, 2], shape
 
 
 def box3_sum(grid: np.ndarray) -> np.ndarray:
-    """Sum of each cell's 3×3×3 block (zero outside), as three separable passes."""
+    """Sum of each cell's 3×3×3 block (zero outside), as three separable passes of shifted adds."""
     out = grid
     for axis in range(3):
-        padded = np.pad(out, [(1, 1) if a == axis else (0, 0) for a in range(3)])
-        n = out.shape[axis]
-        take = lambda start: np.take(padded, np.arange(start, start + n), axis=axis)  # noqa: E731
-        out = take(0) + take(1) + take(2)
+        src = out
+        out = src.copy()
+        lead = [slice(None)] * 3
+        tail = [slice(None)] * 3
+        lead[axis], tail[axis] = slice(1, None), slice(None, -1)
+        out[tuple(lead)] += src[tuple(tail)]
+        out[tuple(tail)] += src[tuple(lead)]
     return out
 
 

@@ -29,7 +29,8 @@ FLAT = 0.8  # thinnest span ≤ this × the middle one: a flat capture, up along
 PLANE_SHARE = 0.3  # a plane holding this share of the opaque Gaussians defines horizontal
 PLANE_NEAR_DEG = 25.0  # … when its normal is within this angle of the thin axis
 PLANE_EXTREME = 0.15  # a dominant plane this near one end of the content is a floor: the content is above it
-SHARP_CLEAR = 0.15  # nats: the size difference (bottom − top quarter) that decides the sign
+SHARP_CLEAR = 0.15
+BASE_CLEAR = 0.02  # flat-base support score (gravity.score_direction) that counts as a base  # nats: the size difference (bottom − top quarter) that decides the sign
 SAMPLE = 20_000
 
 
@@ -65,13 +66,6 @@ def sharpness_sign(points: np.ndarray, log_scales: np.ndarray, u: np.ndarray) ->
         return 0.0
     diffs = [float(np.median(v[bottom]) - np.median(v[top])) for v in (log_scales.max(axis=1), log_scales.mean(axis=1))]
     return 0.5 * (diffs[0] + diffs[1])
-
-
-def _support_sign(points, weights, normals, flatness, u, tol) -> tuple[float, float]:
-    """Flat-base support of +u and −u (gravity.score_direction without refinement)."""
-    a = score_direction(points, weights, normals, flatness, u, tol, refine=False).score
-    b = score_direction(points, weights, normals, flatness, -u, tol, refine=False).score
-    return a, b
 
 
 def _mass_sign(points: np.ndarray, weights: np.ndarray, u: np.ndarray) -> float:
@@ -122,17 +116,23 @@ def estimate_orientation(points: np.ndarray, alphas: np.ndarray, rotations: np.n
     if abs(sharp) >= SHARP_CLEAR:
         sign, how = np.sign(sharp), "finer Gaussians on top (seen from above)"
         sign_conf = min(1.0, abs(sharp) / (2 * SHARP_CLEAR))
-    else:
+    elif plane_pos is not None and min(plane_pos, 1.0 - plane_pos) < PLANE_EXTREME:
+        sign, how, sign_conf = (1.0 if plane_pos < 0.5 else -1.0), "content on one side of the plane", 1.0
+    else:  # no capture evidence: the best flat base among the principal directions, else the heavy end
         normals, flatness = flat_normals(rotations[pick], log_scales[pick])
-        s_up, s_down = _support_sign(p, w, normals, flatness, u, tol)
+        axes = (u,) if kind == "long axis" else (u, vecs[:, 0], vecs[:, 1], vecs[:, 2])  # tall: keep its axis
+        cands = [sg * v for v in axes for sg in (1.0, -1.0)]
+        scored = [score_direction(p, w, normals, flatness, c, tol) for c in cands]
+        best = max(scored, key=lambda r: r.score)
         mass = _mass_sign(p, w, u)
-        if plane_pos is not None and min(plane_pos, 1.0 - plane_pos) < PLANE_EXTREME:
-            sign, how, sign_conf = (1.0 if plane_pos < 0.5 else -1.0), "content on one side of the plane", 1.0
-        elif kind == "long axis" and abs(mass) > 0.03:
+        tall_by_mass = kind == "long axis" and abs(mass) > 0.03
+        if best.score >= BASE_CLEAR and not (tall_by_mass and min(r.score for r in scored) > 0.5 * best.score):
+            rival = max((r.score for r in scored if float(r.up @ best.up) < np.cos(np.radians(20.0))), default=0.0)
+            u, kind = best.up / np.linalg.norm(best.up), ("long axis" if kind == "long axis" else "flat base")
+            sign, how, sign_conf = 1.0, "the side it stands on", 1.0 - rival / best.score
+            flat_axis_conf = 0.5
+        elif tall_by_mass:
             sign, how, sign_conf = np.sign(mass), "heavy end down", min(1.0, abs(mass) / 0.1)
-        elif max(s_up, s_down) > 0:
-            sign, how = (1.0 if s_up >= s_down else -1.0), "flat base"
-            sign_conf = abs(s_up - s_down) / max(s_up, s_down)
         else:
             sign, how, sign_conf = 1.0, "no sign evidence", 0.0
     up = float(sign) * u

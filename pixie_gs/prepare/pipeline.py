@@ -18,7 +18,6 @@ from .scene import (ROLE_BACKGROUND, ROLE_FLOATER, ROLE_GROUND, ROLE_NAMES, ROLE
                     PreparedScene)
 from .updir import declared_up, nearest_axis, parse_up, rotation_to_z, turn
 
-LOW_CONFIDENCE = 0.06  # below this the estimate is not trusted and +z is kept
 SNAP_DEG = 6.0  # an estimate this close to a file axis is taken as that axis (capture tools align files with gravity)
 SNAP_TALL_DEG = 12.0  # … and for a tall object's long axis (guitars on stands, bottles against a wall lean)
 ESTIMATE_SAMPLE = 40_000  # Gaussians the up estimate looks at
