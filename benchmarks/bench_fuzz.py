@@ -10,6 +10,8 @@
    the output folder must be the old output byte for byte or the complete new one (frames that
    match tracks.npz), never a mix; no staging folder may survive a handled signal, and the one a
    SIGKILLed run leaves is removed by the next run.
+4. Memory: peak anonymous memory of `simulate` for 40 vs 400 frames (flat: frames and the
+   trajectory stream to disk).
 
 All counts except the outcome split (old/new) must be 0. This is a correctness benchmark (no speed
 target, so no baseline); the figures before the change are the issue's (SIGINT deleted the old
@@ -204,11 +206,51 @@ def run_interruptions(work: Path, trials: int, seed: int = 7) -> dict:
     return {"run_s": run_s, **results}
 
 
+def _peak_anon_mb(argv: list[str], cwd: Path) -> tuple[float, float]:
+    """(peak RssAnon MB, seconds) of a subprocess, sampled every 20 ms from /proc (Linux)."""
+    proc = subprocess.Popen(argv, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    peak, t0 = 0, time.perf_counter()
+    while proc.poll() is None:
+        try:
+            for line in Path(f"/proc/{proc.pid}/status").read_text().splitlines():
+                if line.startswith("RssAnon:"):
+                    peak = max(peak, int(line.split()[1]))
+        except (OSError, ValueError):
+            pass
+        time.sleep(0.02)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{argv} failed ({proc.returncode})")
+    return peak / 1024, time.perf_counter() - t0
+
+
+def run_memory(work: Path, n: int = 4000, frames: tuple[int, int] = (40, 400)) -> dict:
+    """Peak anonymous memory of `simulate` for few vs many frames: flat when frames stream to disk
+    (the (T,N,3) trajectory is a memory-mapped file; an in-memory one would add T·N·12 bytes)."""
+    base = work / "memory"
+    base.mkdir()
+    ply = fc.write_ply(base / "in.ply", fc.vertex_table(n, materials=True))
+    scene = base / "scene.json"
+    scene.write_text(json.dumps(fc.scene_dict()))
+    print(f"\nmemory of `pixie simulate` ({n} Gaussians, --no-prepare) for {frames[0]} vs {frames[1]} frames:")
+    out = {}
+    for f in frames:
+        argv = _simulate_argv(ply, base / f"out{f}", scene, f) + ["--no-prepare"]
+        peak, secs = _peak_anon_mb(argv, base)
+        in_memory = f * n * 12 / 1e6
+        out[f] = {"peak_anon_mb": round(peak, 1), "seconds": round(secs, 1), "trajectory_mb": round(in_memory, 1)}
+        print(f"  {f:5d} frames: peak anonymous memory {peak:7.1f} MB in {secs:5.1f} s "
+              f"(the trajectory would be {in_memory:.1f} MB if held in memory)")
+        shutil.rmtree(base / f"out{f}")
+    print(f"  growth {out[frames[1]]['peak_anon_mb'] - out[frames[0]]['peak_anon_mb']:+.1f} MB for "
+          f"{frames[1] - frames[0]} more frames")
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mutations", type=int, default=1000)
     ap.add_argument("--trials", type=int, default=20, help="interruptions per signal")
-    ap.add_argument("--skip", default="", help="comma list of parts to skip: corpus,mutations,interrupt")
+    ap.add_argument("--skip", default="", help="comma list of parts to skip: corpus,mutations,interrupt,memory")
     ap.add_argument("--verbose", action="store_true")
     ap.add_argument("--json", default=None, help="also write the figures here")
     args = ap.parse_args()
@@ -222,6 +264,8 @@ def main() -> int:
             figures["mutations"] = run_mutations(work, args.mutations, args.verbose)
         if "interrupt" not in skip:
             figures["interrupt"] = run_interruptions(work, args.trials)
+        if "memory" not in skip:
+            figures["memory"] = run_memory(work)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     if args.json:
