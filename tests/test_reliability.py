@@ -224,6 +224,23 @@ def test_finite_weights_that_overflow_give_exit_3_and_no_file(tmp_path, capsys):
     assert not (tmp_path / "o.ply").exists()
 
 
+def test_evaluate_with_nan_metrics_is_exit_3_and_writes_no_json(tmp_path, capsys):
+    """`evaluate` used to report success with NaN metrics; now a failed computation, no --json file."""
+    import torch
+
+    p = _payload()
+    key = next(k for k in p["state_dict"] if k.startswith("projector") and k.endswith("weight"))
+    p["state_dict"][key] = p["state_dict"][key] * 1e38
+    ckpt = tmp_path / "overflow.pt"
+    torch.save(p, ckpt)
+    assert main(["generate", str(tmp_path / "data"), "--count", "2", "--split", "test", "--gaussians", "200", "-q"]) == 0
+    capsys.readouterr()
+    rc, err = run_cli(["evaluate", ckpt, tmp_path / "data", "--device", "cpu", "--json", tmp_path / "m.json", "-q"],
+                      capsys)
+    assert rc == 3 and "not finite" in one_error_line(err)
+    assert not (tmp_path / "m.json").exists()
+
+
 # ------------------------------------------------------------------------- bounds before allocation
 def _annotated(tmp_path: Path, n: int = 60) -> Path:
     return write_ply(tmp_path / "in.ply", vertex_table(n=n, materials=True))
