@@ -19,6 +19,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help=DEVICE_HELP)
     p.add_argument("--time-budget-s", type=float, default=None, help="stop (and anneal the LR) within this wall time")
     p.add_argument("--resume", action="store_true", help="continue from CKPT.state.pt")
+    p.add_argument("--init", default=None, metavar="CKPT0", help="start from this checkpoint's weights (fine-tuning)")
     p.add_argument("--batch-size", type=int, default=8, help="objects per optimiser step (default 8)")
     p.add_argument("--lr", type=float, default=2e-3, help="Adam learning rate (default 2e-3)")
     p.add_argument("--seed", type=int, default=0, help="seed for initialisation, shuffling and augmentation")
@@ -54,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, time_budget_s=args.time_budget_s,
                       seed=args.seed, augment=not args.no_augment, workers=args.workers,
                       limit_train=args.limit_train, limit_val=args.limit_val, input_mode=args.inputs,
+                      init_from=args.init,
                       model={"base_channels": args.base_channels, "multipliers": mults, "res_blocks": args.res_blocks},
                       features={"resolution": args.resolution})
     meta = train(args.data_dir, args.out, cfg, resolve_torch_device(args.device), args.resume, args.log)

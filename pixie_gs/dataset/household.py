@@ -168,13 +168,15 @@ def mug(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
 def bottle(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
     """Bottle 0.15–0.35 m (shell: body, shoulder, neck) with a cap and often a label band; a fifth
     lie on their side. The colour palette comes from the part name (glass, plastic or metal)."""
+    (part,) = tuple(parts)
     h = rng.uniform(0.15, 0.35)
     r = h * rng.uniform(0.12, 0.2)
     neck = rng.uniform(0.25, 0.45)
-    (part,) = tuple(parts)
+    if part == "metal":  # drinking flask: wide neck, high shoulder
+        r, neck = h * rng.uniform(0.13, 0.18), rng.uniform(0.6, 0.85)
     palette = {"glass": GLASS, "plastic": PLASTIC, "metal": STEEL + [(0.15, 0.35, 0.55), (0.60, 0.15, 0.15)]}
     colour = jitter(rng, pick(rng, palette.get(part, GLASS)), 0.05)
-    sh = rng.uniform(0.55, 0.75)
+    sh = rng.uniform(0.55, 0.75) if part != "metal" else rng.uniform(0.78, 0.86)
     body = lathe(r * np.array([0.95, 1.0, 1.0, neck, neck]), h * np.array([0.0, 0.02, sh, sh + 0.2, 0.93]), 32,
                  True, False)
     cap = lathe(np.full(2, r * neck * 1.1), h * np.array([0.93, 1.0]), 20)

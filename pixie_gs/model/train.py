@@ -38,6 +38,7 @@ class TrainConfig:
     limit_train: int | None = None
     limit_val: int | None = None
     input_mode: str = "full"
+    init_from: str | None = None  # start from this checkpoint's weights (same network config), fresh optimiser
     model: dict = field(default_factory=dict)  # ModelConfig overrides (base_channels, multipliers, …)
     features: dict = field(default_factory=dict)  # FeatureSpec overrides (resolution, filter_voxels)
 
@@ -109,6 +110,14 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
     inputs = list(INPUT_MODES[cfg.input_mode] or names)
     mcfg = ModelConfig(input_channels=inputs, **cfg.model)
     model = MaterialUNet(mcfg).to(device)
+    if cfg.init_from and not state:
+        from .checkpoint import load_checkpoint
+
+        init = load_checkpoint(cfg.init_from, "cpu")
+        if init.config.to_dict() != mcfg.to_dict():
+            raise InputError("--init checkpoint has a different network configuration", cfg.init_from)
+        model.load_state_dict(init.model.state_dict())
+        stage(f"starting from the weights of {cfg.init_from}")
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     history: list[dict] = []
     start_epoch, step, elapsed_before, best = 0, 0, 0.0, -math.inf
