@@ -479,3 +479,18 @@ def test_measured_tracks_with_no_points_or_absurd_times_are_refused(tmp_path, t,
     cloud = SplatCloud.from_arrays(np.random.default_rng(0).uniform(-1, 1, (50, 3)))
     with pytest.raises(InputError, match=word):
         load_measured(path, cloud)
+
+
+@pytest.mark.parametrize("command", ["prepare", "render", "convert"])
+def test_drop_invalid_on_the_other_commands_that_read_splats(tmp_path, capsys, command):
+    t = vertex_table(n=120, materials=True)
+    t["opacity"][7] = np.nan
+    path = write_ply(tmp_path / "bad.ply", t)
+    out = {"prepare": tmp_path / "o.ply", "render": tmp_path / "o.png", "convert": tmp_path / "o.splat"}[command]
+    args = {"prepare": ["prepare", path, out, "-q"], "render": ["render", path, "--out", out, "--device", "cpu",
+                                                                 "--size", "64", "-q"],
+            "convert": ["convert", path, out, "-q"]}[command]
+    rc, err = run_cli(args, capsys)
+    assert rc == 1 and "opacity" in one_error_line(err) and not out.exists()
+    rc, err = run_cli(args + ["--drop-invalid"], capsys)
+    assert rc == 0 and "dropped 1 of 120 Gaussians" in err and out.exists()

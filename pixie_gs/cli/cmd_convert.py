@@ -35,6 +35,8 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
                    help="mesh input: interior Gaussians with --fill (default: same as --count)")
     p.add_argument("--seed", type=int, default=0, help="mesh input: random seed (default 0)")
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")
+    p.add_argument("--drop-invalid", action="store_true",
+                   help="splat input: remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
     p.add_argument("--preview", metavar="PNG", default=None,
                    help="also write a PNG with four views of the splat (point-splat render; +y up "
                    "for glTF/OBJ input, whose convention it is, +z up otherwise)")
@@ -87,13 +89,13 @@ def convert_splat(args: argparse.Namespace, source_format: str):
     from ..errors import InputError
     from ..formats import LABELS, format_for_path, lossy_note, normalise_format, write_any
     from ..progress import stage
-    from ..splat import read_splat
+    from ..splat import read_splat_valid
 
     if args.count is not None or args.fill or args.fill_count is not None:
         raise InputError("--count/--fill/--fill-count apply to mesh input; IN is a splat "
                          f"({LABELS[source_format]})", args.mesh)
     target = normalise_format(args.format) if args.format else format_for_path(args.out)
-    cloud = read_splat(args.mesh)
+    cloud = read_splat_valid(args.mesh, args.drop_invalid)
     stage(f"read {len(cloud)} Gaussians ({LABELS[source_format]}, SH degree {cloud.sh_degree}) from {args.mesh}")
     note = lossy_note(cloud, target)
     if note:

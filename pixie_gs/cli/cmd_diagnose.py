@@ -47,6 +47,8 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--verify-written", action="store_true",
                    help="re-simulate the improved model once more from the files written to DIR")
     p.add_argument("--force", action="store_true", help="overwrite an earlier diagnosis in DIR")
+    p.add_argument("--drop-invalid", action="store_true",
+                   help="remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
     p.set_defaults(func=run)
     return p
 
@@ -68,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     from ..progress import stage
     from ..sim.run import _material_arrays
     from ..sim.scene import Scene
-    from ..splat import read_splat
+    from ..splat import read_splat_valid
 
     if args.effects == "list":
         for effect in registry().values():
@@ -93,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     if args.max_evals < 2:
         raise InputError(f"--max-evals must be ≥ 2, got {args.max_evals}")
     start = time.perf_counter()
-    cloud = read_splat(args.model)
+    cloud = read_splat_valid(args.model, args.drop_invalid)
     _material_arrays(cloud)
     scene = Scene.from_json(args.scene) if args.scene else Scene.preset("drop")
     if args.grid is not None:

@@ -53,6 +53,8 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("output", metavar="OUT.ply", help="prepared splat to write (+ OUT.prepare.json)")
     add_prepare_options(p, skip=False)
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")
+    p.add_argument("--drop-invalid", action="store_true",
+                   help="remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
     p.set_defaults(func=run)
     return p
 
@@ -60,12 +62,12 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
 def run(args: argparse.Namespace) -> int:
     from ..atomic import check_distinct_output
     from ..prepare import parse_crop, parse_up
-    from ..splat import read_splat, write_splat
+    from ..splat import read_splat_valid, write_splat
 
     check_distinct_output(args.input, args.output, args.force)
     parse_up(args.up)
     parse_crop(args.crop)
-    cloud = read_splat(args.input)
+    cloud = read_splat_valid(args.input, args.drop_invalid)
     out, scene = prepare_from_args(cloud, args)
     write_splat(out, args.output)
     write_sidecar(scene, args.output)

@@ -49,6 +49,8 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
                    help="camera azimuth around the up axis; the orbit starts here (−90°: looking along +y for z up)")
     p.add_argument("--background", choices=tuple(BACKGROUNDS), default="white", help="background (white)")
     p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help=DEVICE_HELP)
+    p.add_argument("--drop-invalid", action="store_true",
+                   help="remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
     p.set_defaults(func=run)
     return p
 
@@ -81,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     from ..gsrender.sequence import (check_sizes, render_frames_dir, render_splat_file, sheet, strip_sheet)
     from ..gsrender.video import output_format, save_frames
     from ..progress import stage
-    from ..splat import read_splat
+    from ..splat import read_splat_valid
 
     source, out = Path(args.input), Path(args.out)
     kind = output_format(out)
@@ -131,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             frames = [sheet(v, modes, lab) for v, lab in zip(views, labels)]
     else:
-        cloud = read_splat(source)
+        cloud = read_splat_valid(source, args.drop_invalid)
         if crop is not None:
             inside = crop.contains(cloud.means.astype(np.float64))
             if not inside.any():
