@@ -494,3 +494,20 @@ def test_drop_invalid_on_the_other_commands_that_read_splats(tmp_path, capsys, c
     assert rc == 1 and "opacity" in one_error_line(err) and not out.exists()
     rc, err = run_cli(args + ["--drop-invalid"], capsys)
     assert rc == 0 and "dropped 1 of 120 Gaussians" in err and out.exists()
+
+
+@pytest.mark.parametrize("state", [{"model": {}, "epoch": "3"}, {"weird": 1}, [1, 2], "garbage-bytes"])
+def test_damaged_resume_state_is_one_line(tmp_path, capsys, state):
+    import torch
+
+    data = tmp_path / "data"
+    (data / "train").mkdir(parents=True)
+    ckpt = tmp_path / "m.pt"
+    side = tmp_path / "m.pt.state.pt"
+    if state == "garbage-bytes":
+        side.write_bytes(b"PK\x03\x04 not a torch file")
+    else:
+        torch.save(state, side)
+    rc, err = run_cli(["train", data, "--out", ckpt, "--resume", "--epochs", "1", "--device", "cpu", "-q"], capsys)
+    line = one_error_line(err)
+    assert rc == 1 and "state" in line and str(side) in line

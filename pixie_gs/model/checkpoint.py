@@ -204,3 +204,33 @@ def validate_payload(payload: object, path: str | Path) -> tuple[ModelConfig, Fe
 def state_path(checkpoint: str | Path) -> Path:
     """Sidecar file holding the optimiser/epoch state for `pixie train --resume`."""
     return Path(str(checkpoint) + ".state.pt")
+
+
+def load_training_state(path: str | Path) -> dict:
+    """The `--resume` sidecar (model/optimiser state, epoch, step, history), checked: one-line
+    InputError for an unreadable file, a missing or mistyped entry, or NaN/inf model weights."""
+    import json
+
+    import torch
+
+    path = Path(path)
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for foreign or damaged files
+        text = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"not a readable training state ({text})", path) from None
+    types = {"model": dict, "optimizer": dict, "epoch": int, "step": int, "elapsed_s": (int, float),
+             "best_score": (int, float), "history_json": str, "extra_names": (list, tuple)}
+    if not isinstance(state, dict):
+        raise InputError("damaged training state (not a mapping)", path)
+    for key, kind in types.items():
+        if key not in state or isinstance(state[key], bool) or not isinstance(state[key], kind):
+            raise InputError(f"damaged training state ('{key}' missing or of the wrong type)", path)
+    if not all(isinstance(v, torch.Tensor) and (not v.is_floating_point() or bool(torch.isfinite(v).all()))
+               for v in state["model"].values()):
+        raise InputError("damaged training state (model weights that are not finite tensors)", path)
+    try:
+        json.loads(state["history_json"])
+    except (ValueError, RecursionError):
+        raise InputError("damaged training state (history is not JSON)", path) from None
+    return state

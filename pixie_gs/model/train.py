@@ -17,7 +17,7 @@ from ..errors import InputError
 from ..field import INPUT_MODES
 from ..progress import progress, stage
 from .batch import AugmentConfig, build_batch
-from .checkpoint import FeatureSpec, LoadedModel, save_checkpoint, state_path
+from .checkpoint import FeatureSpec, LoadedModel, load_training_state, save_checkpoint, state_path
 from .evaluate import evaluate_store
 from .predict import grid_channel_names, object_feature_summary, select_inputs
 from .unet import MaterialUNet, ModelConfig, masked_loss
@@ -94,7 +94,7 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
     if resume:
         if not side.exists():
             raise InputError("nothing to resume (no training state next to the checkpoint)", side)
-        state = torch.load(side, map_location="cpu", weights_only=True)
+        state = load_training_state(side)
     t0 = time.perf_counter()
     torch.manual_seed(cfg.seed)
     stage(f"loading training data from {data_dir}")
