@@ -136,7 +136,7 @@ class StagedDirectory:
     """
 
     def __init__(self, target: str | Path) -> None:
-        self.target = Path(os.path.abspath(target))
+        self.target = Path(os.path.realpath(target))  # through symlinks: the real folder is what gets swapped
         if not self.target.parent.is_dir():
             raise InputError("parent directory does not exist", self.target.parent)
         remove_stale_staging(self.target)
