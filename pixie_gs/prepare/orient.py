@@ -75,6 +75,20 @@ def _mass_sign(points: np.ndarray, weights: np.ndarray, u: np.ndarray) -> float:
     return float(0.5 * (lo + hi) - np.average(h, weights=weights)) / max(hi - lo, 1e-12)
 
 
+def _wide_end_sign(points: np.ndarray, u: np.ndarray) -> float:
+    """> 0 when the lowest 15 % along u is wider (median distance from the axis) than the highest
+    15 %: the wide end down, as a bottle or a guitar on its stand stands."""
+    c = points - points.mean(axis=0)
+    h = c @ u
+    lo, hi = np.percentile(h, [2, 98])
+    radial = np.linalg.norm(c - np.outer(h, u), axis=1)
+    low, high = h < lo + 0.15 * (hi - lo), h > hi - 0.15 * (hi - lo)
+    if low.sum() < 10 or high.sum() < 10:
+        return 0.0
+    a, b = float(np.median(radial[low])), float(np.median(radial[high]))
+    return (a - b) / max(a, b, 1e-12)
+
+
 def estimate_orientation(points: np.ndarray, alphas: np.ndarray, rotations: np.ndarray, log_scales: np.ndarray,
                          spacing: float, seed: int = 0) -> Orientation:
     """Up of a cloud (floaters removed): points (N,3), alphas (N,), rotations (N,4) w,x,y,z,
@@ -124,15 +138,15 @@ def estimate_orientation(points: np.ndarray, alphas: np.ndarray, rotations: np.n
         cands = [sg * v for v in axes for sg in (1.0, -1.0)]
         scored = [score_direction(p, w, normals, flatness, c, tol) for c in cands]
         best = max(scored, key=lambda r: r.score)
-        mass = _mass_sign(p, w, u)
-        tall_by_mass = kind == "long axis" and abs(mass) > 0.03
+        mass = _wide_end_sign(p, u)
+        tall_by_mass = kind == "long axis" and abs(mass) > 0.1
         if best.score >= BASE_CLEAR and not (tall_by_mass and min(r.score for r in scored) > 0.5 * best.score):
             rival = max((r.score for r in scored if float(r.up @ best.up) < np.cos(np.radians(20.0))), default=0.0)
             u, kind = best.up / np.linalg.norm(best.up), ("long axis" if kind == "long axis" else "flat base")
             sign, how, sign_conf = 1.0, "the side it stands on", 1.0 - rival / best.score
             flat_axis_conf = 0.5
         elif tall_by_mass:
-            sign, how, sign_conf = np.sign(mass), "heavy end down", min(1.0, abs(mass) / 0.1)
+            sign, how, sign_conf = np.sign(mass), "wide end down", min(1.0, abs(mass) / 0.3)
         else:
             sign, how, sign_conf = 1.0, "no sign evidence", 0.0
     up = float(sign) * u

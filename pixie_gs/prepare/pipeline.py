@@ -20,6 +20,7 @@ from .updir import declared_up, nearest_axis, parse_up, rotation_to_z, turn
 
 SNAP_DEG = 6.0  # an estimate this close to a file axis is taken as that axis (capture tools align files with gravity)
 SNAP_TALL_DEG = 12.0  # … and for a tall object's long axis (guitars on stands, bottles against a wall lean)
+LOW_CONFIDENCE = 0.1  # below this the estimate is not trusted and the file's +z is kept
 ESTIMATE_SAMPLE = 40_000  # Gaussians the up estimate looks at
 TINY_COMPONENT = 0.002  # share of the Gaussians below which a cluster away from objects is a floater
 
@@ -61,6 +62,8 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
         est = estimate_orientation(x[pick], alpha[pick], cloud.rotations[pick], cloud.log_scales[pick], spacing,
                                    seed=seed)
         u, method, confidence = est.up, est.method, est.confidence
+        if confidence < LOW_CONFIDENCE:  # no clear evidence: keep the file's +z (pixie's own convention)
+            u, method = np.array([0.0, 0.0, 1.0]), f"default z (evidence weak: {est.method})"
         axis, angle = nearest_axis(u)
         if angle < (SNAP_TALL_DEG if est.method.startswith("long axis") else SNAP_DEG):  # the file's own axis
             u = parse_up(axis)
