@@ -244,3 +244,38 @@ def test_label_ranges_from_meta_and_nu_cap():
     assert label_ranges({})["log10_E_pa"] == [3.018, 10.882]
     r = label_ranges({"label_ranges": {"log10_E_pa": [4.0, 11.0], "nu": [0.1, 0.6], "log10_density_kg_m3": "bad"}})
     assert r["log10_E_pa"] == [4.0, 11.0] and r["nu"] == [0.1, 0.49] and r["log10_density_kg_m3"] == [1.703, 3.871]
+
+
+# ------------------------------------------------------------------ confidence (issue 12)
+def test_in_distribution_score_from_stored_statistics():
+    """RMS z-score d against meta["feature_stats"]: 1 up to OOD_FREE_Z, then a Gaussian fall-off."""
+    from pixie_gs.model.predict import OOD_FREE_Z, OOD_WIDTH, in_distribution_score
+
+    meta = {"feature_stats": {"mean": [0.0, 1.0, 2.0], "std": [1.0, 0.5, 2.0]}}
+    assert in_distribution_score({}, np.zeros(3)) == 1.0  # no statistics: no opinion
+    assert in_distribution_score(meta, np.array([0.5, 1.25, 3.0])) == 1.0  # z = 0.5 each
+    f = np.array([2.0, 2.0, 6.0])  # z = 2, 2, 2 → d = 2
+    want = math.exp(-0.5 * ((2.0 - OOD_FREE_Z) / OOD_WIDTH) ** 2)
+    assert in_distribution_score(meta, f) == pytest.approx(want)
+    assert in_distribution_score(meta, np.zeros(4)) == 1.0  # mismatched length: ignored
+
+
+def test_annotate_writes_confidence_and_warns_when_unlike_training(monkeypatch, capsys):
+    """Per-Gaussian `confidence` in [0, 1]; with training statistics far from this object the
+    in-distribution factor drops to ~0 and annotate says the materials are a guess."""
+    from pixie_gs import annotate as ann
+    from pixie_gs.progress import set_quiet
+
+    loaded = load_checkpoint(None, "cpu")
+    monkeypatch.setitem(ann._CACHE, (str(DEFAULT_CHECKPOINT), "cpu"), loaded)
+    set_quiet(False)
+    rod = _dark_rod()
+    out = ann.annotate_cloud(rod, device="cpu")
+    conf = out.get("confidence")
+    assert conf.shape == (len(rod),) and 0.0 <= conf.min() and conf.max() <= 1.0 and conf.mean() > 0.3
+    n_channels = len(grid_channel_names(loaded.features.extra_names)) + 1
+    loaded.meta = {**loaded.meta, "feature_stats": {"mean": [50.0] * n_channels, "std": [0.01] * n_channels}}
+    capsys.readouterr()
+    far = ann.annotate_cloud(rod, device="cpu").get("confidence")
+    assert far.max() < 1e-3
+    assert "treat its materials as a guess" in capsys.readouterr().err

@@ -78,8 +78,10 @@ def normalised_bounds(meta: dict) -> tuple[np.ndarray, np.ndarray]:
 
 
 # In-distribution score: RMS z-score d of an object's grid statistics against the training objects';
-# exp(-½ (d - OOD_FREE_Z)²) above OOD_FREE_Z, 1 below.
-OOD_FREE_Z = 1.5
+# exp(-½ ((d - OOD_FREE_Z) / OOD_WIDTH)²) above OOD_FREE_Z, 1 below. Set on generated held-out objects
+# (d 0.5–1.6, most ≤ 1) vs out-of-vocabulary ones (d 1.2–2.4); see docs/model_card.md "Confidence".
+OOD_FREE_Z = 1.0
+OOD_WIDTH = 0.35
 GUESS_THRESHOLD = 0.5  # mean confidence under which annotate calls the materials a guess
 
 
@@ -109,7 +111,7 @@ def in_distribution_score(meta: dict, summary: np.ndarray) -> float:
     if mu.shape != f.shape or sd.shape != f.shape:
         return 1.0
     d = float(np.sqrt(np.mean(((f - mu) / sd) ** 2)))
-    return float(np.exp(-0.5 * max(0.0, d - OOD_FREE_Z) ** 2))
+    return float(np.exp(-0.5 * (max(0.0, d - OOD_FREE_Z) / OOD_WIDTH) ** 2))
 
 
 def voxel_confidence(logits, occupied):
