@@ -16,51 +16,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from plyfile import PlyData, PlyElement
+
+from fuzz_corpus import vertex_table, write_ply
 
 from pixie_gs.cli.main import main
 from pixie_gs.errors import InputError
-from pixie_gs.splat import SplatCloud, read_splat, read_splat_valid, rgb_to_sh_dc
+from pixie_gs.splat import SplatCloud, read_splat, read_splat_valid
 
 N = 200
-
-
-def vertex_table(n: int = N, seed: int = 0, materials: bool = False, extras: bool = True) -> np.ndarray:
-    """A 3DGS vertex table (degree-1 SH, a float feature extra) as plyfile writes it."""
-    rng = np.random.default_rng(seed)
-    names = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2"] + [f"f_rest_{i}" for i in range(9)]
-    names += ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
-    if extras:
-        names += ["feature_7"]
-    dtype = [(k, "<f4") for k in names]
-    if materials:
-        dtype += [("material_id", "<i4"), ("E", "<f4"), ("nu", "<f4"), ("density", "<f4")]
-    t = np.zeros(n, dtype=dtype)
-    for k, v in zip("xyz", rng.uniform(-0.5, 0.5, (3, n))):
-        t[k] = v
-    for i, v in enumerate(rgb_to_sh_dc(rng.random((n, 3))).T):
-        t[f"f_dc_{i}"] = v
-    for i in range(9):
-        t[f"f_rest_{i}"] = rng.normal(size=n) * 0.05
-    t["opacity"] = rng.normal(size=n)
-    for i in range(3):
-        t[f"scale_{i}"] = rng.uniform(-4.5, -3.5, n)
-    q = rng.normal(size=(n, 4))
-    for i in range(4):
-        t[f"rot_{i}"] = q[:, i]
-    if extras:
-        t["feature_7"] = rng.normal(size=n)
-    if materials:
-        t["material_id"] = 0
-        t["E"] = rng.uniform(2e4, 4e4, n)
-        t["nu"] = rng.uniform(0.3, 0.35, n)
-        t["density"] = rng.uniform(100, 150, n)
-    return t
-
-
-def write_ply(path: Path, table: np.ndarray) -> Path:
-    PlyData([PlyElement.describe(table, "vertex")], text=False, byte_order="<").write(str(path))
-    return path
 
 
 def run_cli(args: list[str], capsys) -> tuple[int, str]:

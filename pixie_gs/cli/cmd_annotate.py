@@ -5,6 +5,7 @@ import argparse
 
 from ..devices import DEVICE_CHOICES, DEVICE_HELP
 from .cmd_prepare import add_prepare_options, prepare_from_args, write_sidecar
+from .options import add_drop_invalid_option
 
 
 def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.ArgumentParser:
@@ -22,8 +23,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     add_prepare_options(p)
     p.add_argument("--rrd", default=None, metavar="FILE", help="rerun recording: splat by RGB, material, log E")
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")
-    p.add_argument("--drop-invalid", action="store_true",
-                   help="remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
+    add_drop_invalid_option(p)
     p.set_defaults(func=run)
     return p
 

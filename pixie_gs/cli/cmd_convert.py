@@ -7,6 +7,7 @@ pixie-gs reads (found by content) is rewritten in the format OUT's name asks for
 from __future__ import annotations
 
 import argparse
+from .options import add_drop_invalid_option
 
 SPLAT_ONLY_SUFFIXES = (".splat", ".spz")
 
@@ -35,8 +36,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
                    help="mesh input: interior Gaussians with --fill (default: same as --count)")
     p.add_argument("--seed", type=int, default=0, help="mesh input: random seed (default 0)")
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")
-    p.add_argument("--drop-invalid", action="store_true",
-                   help="splat input: remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
+    add_drop_invalid_option(p, prefix="splat input: ")
     p.add_argument("--preview", metavar="PNG", default=None,
                    help="also write a PNG with four views of the splat (point-splat render; +y up "
                    "for glTF/OBJ input, whose convention it is, +z up otherwise)")

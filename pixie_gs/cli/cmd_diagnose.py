@@ -6,6 +6,7 @@ from pathlib import Path
 
 from ..devices import DEVICE_CHOICES, DEVICE_HELP
 from ..errors import InputError
+from .options import add_drop_invalid_option
 
 
 def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.ArgumentParser:
@@ -47,8 +48,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--verify-written", action="store_true",
                    help="re-simulate the improved model once more from the files written to DIR")
     p.add_argument("--force", action="store_true", help="overwrite an earlier diagnosis in DIR")
-    p.add_argument("--drop-invalid", action="store_true",
-                   help="remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
+    add_drop_invalid_option(p)
     p.set_defaults(func=run)
     return p
 

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..materials import MATERIAL_NAMES
 from ..splat import read_splat_valid
+from .options import add_drop_invalid_option
 
 
 def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.ArgumentParser:
@@ -19,8 +20,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     )
     p.add_argument("input", metavar="IN", help="3D Gaussian splat file (.ply, .compressed.ply, .splat, .spz)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
-    p.add_argument("--drop-invalid", action="store_true",
-                   help="remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
+    add_drop_invalid_option(p)
     p.set_defaults(func=run)
     return p
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ..prepare.updir import add_up_option
+from .options import add_drop_invalid_option
 
 
 def add_prepare_options(p: argparse.ArgumentParser, skip: bool = True) -> None:
@@ -53,8 +54,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("output", metavar="OUT.ply", help="prepared splat to write (+ OUT.prepare.json)")
     add_prepare_options(p, skip=False)
     p.add_argument("--force", action="store_true", help="allow OUT to be the input file")
-    p.add_argument("--drop-invalid", action="store_true",
-                   help="remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
+    add_drop_invalid_option(p)
     p.set_defaults(func=run)
     return p
 

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..devices import DEVICE_CHOICES, DEVICE_HELP
 from ..errors import InputError
+from .options import add_drop_invalid_option
 
 MODE_CHOICES = ("colour", "material", "logE", "confidence")
 BACKGROUNDS = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0)}
@@ -49,8 +50,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
                    help="camera azimuth around the up axis; the orbit starts here (−90°: looking along +y for z up)")
     p.add_argument("--background", choices=tuple(BACKGROUNDS), default="white", help="background (white)")
     p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help=DEVICE_HELP)
-    p.add_argument("--drop-invalid", action="store_true",
-                   help="remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
+    add_drop_invalid_option(p)
     p.set_defaults(func=run)
     return p
 

@@ -7,6 +7,7 @@ from pathlib import Path
 from ..devices import DEVICE_CHOICES, DEVICE_HELP
 from .cmd_prepare import add_prepare_options
 from ..errors import InputError
+from .options import add_drop_invalid_option
 
 PRESET_CHOICES = ("drop", "wind", "push")
 FPS_RANGE = (1e-3, 1e5)  # output frames per second: beyond, frame times overflow or vanish
@@ -38,8 +39,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
                    "(default: automatic for a prepared object that is a closed surface shell)")
     add_prepare_options(p)
     p.add_argument("--force", action="store_true", help="overwrite earlier frames in DIR")
-    p.add_argument("--drop-invalid", action="store_true",
-                   help="remove Gaussians with NaN/inf/absurd values (and say how many) instead of failing")
+    add_drop_invalid_option(p)
     p.set_defaults(func=run)
     return p
 
