@@ -21,8 +21,9 @@ def atomic_path(target: str | Path, suffix: str | None = None) -> Iterator[Path]
     directory = target.parent if str(target.parent) else Path(".")
     if not directory.is_dir():
         raise InputError("output directory does not exist", directory)
+    remove_stale_temp_files(target)
     fd, tmp_name = tempfile.mkstemp(
-        prefix=f".{target.name}.", suffix=suffix if suffix is not None else ".tmp", dir=directory
+        prefix=_temp_prefix(target, os.getpid()), suffix=suffix if suffix is not None else ".tmp", dir=directory
     )
     os.close(fd)
     tmp = Path(tmp_name)
@@ -37,6 +38,35 @@ def atomic_path(target: str | Path, suffix: str | None = None) -> Iterator[Path]
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
         raise
+
+
+TEMP_TAG = ".pixie-tmp-"
+
+
+def _temp_prefix(target: Path, pid: int) -> str:
+    """Name prefix of the temporary files that process `pid` writes for `target` (the PID lets a
+    later run tell a file of a killed run from one still being written)."""
+    return f".{target.name}{TEMP_TAG}{pid}-"
+
+
+def remove_stale_temp_files(target: str | Path) -> int:
+    """Delete temporary files of `target` left by runs that were killed (SIGKILL cannot be
+    handled, so the next write to the same target cleans up). Returns how many were removed."""
+    target = Path(target)
+    parent = target.parent if str(target.parent) else Path(".")
+    prefix = f".{target.name}{TEMP_TAG}"
+    removed = 0
+    with contextlib.suppress(OSError):
+        for entry in parent.iterdir():
+            if not entry.name.startswith(prefix):
+                continue
+            pid_text = entry.name[len(prefix):].split("-", 1)[0]
+            if not pid_text.isdigit() or int(pid_text) == os.getpid() or _pid_alive(int(pid_text)):
+                continue
+            with contextlib.suppress(OSError):
+                entry.unlink()
+                removed += 1
+    return removed
 
 
 def check_distinct_output(inp: str | Path, out: str | Path, force: bool = False) -> None:

@@ -474,3 +474,46 @@ def test_damaged_resume_state_is_one_line(tmp_path, capsys, state):
     rc, err = run_cli(["train", data, "--out", ckpt, "--resume", "--epochs", "1", "--device", "cpu", "-q"], capsys)
     line = one_error_line(err)
     assert rc == 1 and "state" in line and str(side) in line
+
+
+# ------------------------------------------------------------------ killed writers and a full disk
+_KILLED_WRITER = """
+import os, signal, sys
+from pixie_gs.atomic import atomic_path
+with atomic_path(sys.argv[1], suffix=".ply.tmp") as tmp:
+    tmp.write_bytes(b"ply\\npartial")
+    os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_temp_file_of_a_sigkilled_writer_is_removed_by_the_next_write(tmp_path, capsys):
+    """SIGKILL cannot be handled: the killed run's temp file stays, and the next run to the same
+    OUT removes it (its PID is in the name and that process is gone)."""
+    ply = write_ply(tmp_path / "in.ply", vertex_table())
+    out = tmp_path / "out.ply"
+    proc = subprocess.run([sys.executable, "-c", _KILLED_WRITER, str(out)], capture_output=True, text=True)
+    assert proc.returncode == -signal.SIGKILL
+    stale = [p.name for p in tmp_path.iterdir() if p.name.startswith(".out.ply")]
+    assert len(stale) == 1 and not out.exists()
+    assert main(["convert", str(ply), str(out)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.ply", "out.ply"]
+
+
+def test_full_disk_while_writing_is_one_line_and_leaves_nothing(tmp_path, capsys, monkeypatch):
+    """Fault injection: the PLY writer hits ENOSPC half way through its file."""
+    import errno
+
+    from plyfile import PlyData
+
+    def write_then_fail(self, stream):
+        with open(stream, "wb") as fh:
+            fh.write(b"ply\n" + b"\0" * 100)
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(stream))
+
+    ply = write_ply(tmp_path / "in.ply", vertex_table())
+    before = ply.read_bytes()
+    monkeypatch.setattr(PlyData, "write", write_then_fail)
+    rc, err = run_cli(["convert", ply, tmp_path / "out.ply"], capsys)
+    line = one_error_line(err)
+    assert rc == 1 and "No space left on device" in line and str(tmp_path) in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.ply"] and ply.read_bytes() == before
