@@ -104,66 +104,6 @@ def example_path(name: str) -> Path:
     return path
 
 
-def subsample_per_cell(cloud: SplatCloud, scene, per_cell: int, seed: int = 0) -> np.ndarray:
-    """Sorted indices of at most `per_cell` Gaussians per simulation grid cell (chosen at random
-    with `seed`), with the object placed as `scene` places it.
-
-    Unlike a uniform random subset, this keeps thin parts (trunks, branches, can walls) as
-    connected on the grid as the full splat is, while dense blobs are thinned: the particle
-    count, and so the run time, follows the number of occupied cells.
-    """
-    from .sim.run import placement_transform
-
-    if per_cell < 1:
-        raise InputError(f"particles per cell must be ≥ 1, got {per_cell}")
-    x = placement_transform(cloud.means, scene).to_world(cloud.means)
-    cell = np.floor((x - scene.domain_origin()) / scene.dx).astype(np.int64)
-    order = np.random.default_rng(seed).permutation(len(x))
-    _, group = np.unique(cell[order], axis=0, return_inverse=True)
-    group = group.reshape(-1)
-    by_group = np.argsort(group, kind="stable")
-    starts = np.concatenate([[0], np.cumsum(np.bincount(group))[:-1]])
-    rank = np.empty(len(group), np.int64)
-    rank[by_group] = np.arange(len(group)) - starts[group[by_group]]
-    return np.sort(order[rank < per_cell])
-
-
-class Carrier:
-    """Moves Gaussians that were not simulated with their nearest simulated one (at frame 0),
-    through its deformation: x = x0 + (x_p − x_p0) + (F_p − I)·(x0 − x_p0), Σ' = F_p Σ F_pᵀ, so
-    written frames hold every Gaussian of the input while the simulation runs on a per-cell
-    subset. Written as a displacement, so a Gaussian whose carrier has not moved keeps its bytes."""
-
-    def __init__(self, all_means: np.ndarray, simulated_means: np.ndarray,
-                 all_materials: np.ndarray | None = None, simulated_materials: np.ndarray | None = None) -> None:
-        """With material ids, each Gaussian is carried by the nearest simulated Gaussian of its own
-        material (a pot Gaussian never rides on the trunk beside it), else by the nearest one."""
-        from scipy.spatial import cKDTree
-
-        _, self.anchor = cKDTree(simulated_means).query(all_means)
-        if all_materials is not None and simulated_materials is not None:
-            for m in np.unique(all_materials):
-                mine, theirs = all_materials == m, np.flatnonzero(simulated_materials == m)
-                if len(theirs):
-                    self.anchor[mine] = theirs[cKDTree(simulated_means[theirs]).query(all_means[mine])[1]]
-        self.all_means = np.asarray(all_means, np.float32)
-        self.anchor_start = np.asarray(simulated_means, np.float32)[self.anchor]
-        self.offset = self.all_means - self.anchor_start
-
-    def carry(self, state):
-        """The FrameState of all Gaussians from that of the simulated ones (x_world: the
-        carrying particle's world position)."""
-        from dataclasses import replace
-
-        moved = state.x[self.anchor] - self.anchor_start
-        if state.F is None:
-            return replace(state, x=self.all_means + moved, x_world=state.x_world[self.anchor])
-        F = state.F[self.anchor]
-        stretch = np.einsum("nij,nj->ni", F, self.offset) - self.offset
-        return replace(state, x=(self.all_means + moved + stretch).astype(np.float32),
-                       x_world=state.x_world[self.anchor], F=F)
-
-
 def splat_views(frames_dir: Path, up: str, size_px: int, azimuth_deg: float, elevation_deg: float,
                 device: str = "auto") -> list[list[np.ndarray]]:
     """Real 3DGS renders [frame][colour, material, log E] of the written frame files (every
@@ -227,6 +167,7 @@ def run_scenario(cloud: SplatCloud, scene, out_dir: Path, frames: int, fps: floa
     from .render import save_gif, save_png
     from .sim.frames import FrameWriter
     from .sim.run import FrameState, simulate
+    from .sim.subsample import Carrier, subsample_per_cell
 
     files = {"frames": out_dir / "frames", "rrd": out_dir / "run.rrd", "strip": out_dir / "strip.png"}
     if gif:

@@ -138,7 +138,7 @@ def test_demo_writes_everything_and_the_tree_sways_with_its_pot_fixed(tmp_path):
 def test_carrier_moves_unsimulated_gaussians_with_their_nearest_particle():
     """Known answer: under a homogeneous F and a translation, carried Gaussians land where the
     same affine motion puts them, and their deformation gradient is the carrier's."""
-    from pixie_gs.demo import Carrier
+    from pixie_gs.sim.subsample import Carrier
     from pixie_gs.sim.run import FrameState
 
     rng = np.random.default_rng(1)
@@ -159,7 +159,7 @@ def test_carrier_moves_unsimulated_gaussians_with_their_nearest_particle():
 
 def test_subsample_per_cell_keeps_every_occupied_cell_and_caps_each():
     """Known answer: a dense cluster is thinned to the cap, a sparse line keeps every point."""
-    from pixie_gs.demo import subsample_per_cell
+    from pixie_gs.sim.subsample import subsample_per_cell
     from pixie_gs.sim.run import placement_transform
     from pixie_gs.sim.scene import Scene
     from pixie_gs.splat import SplatCloud

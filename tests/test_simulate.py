@@ -268,3 +268,36 @@ def test_build_particles_with_fill_takes_nearest_material():
     assert (p.material_id[extra][side] == 1).all() and (p.E[extra][side] == 1e6).all()
     far = p.x[extra, 0] < centre_x - scene.dx
     assert (p.material_id[extra][far] == 0).all()
+
+
+@pytest.mark.parametrize("prepared", [False, True])
+def test_cli_per_cell_carries_the_rest_in_free_fall(tmp_path, capsys, prepared):
+    """--per-cell 2: fewer Gaussians simulated (said on the terminal), frames still hold every
+    Gaussian in file order, and the carried ones fall with the simulated ones by ½gt² (no ground)."""
+    cloud = annotated_cloud(900, seed=4)
+    cloud.set("E", np.full(len(cloud), 3e6))  # stiff: falls as a rigid body
+    scene = scene_dict(domain={"size_m": 5.0, "grid": 40, "origin": [-2.5, -2.5, -4.25]}, ground={"enabled": False})
+    ply, sc = write_inputs(tmp_path, cloud, scene)
+    out, fps, frames = tmp_path / "frames", 8.0, 4
+    rc = main(["simulate", str(ply), "--out", str(out), "--scene", str(sc), "--frames", str(frames), "--fps",
+               str(fps), "--device", "cpu", "--per-cell", "2"] + ([] if prepared else ["--no-prepare"]))
+    assert rc == 0
+    err = capsys.readouterr().err
+    simulated = int(err.split("Gaussians simulated")[0].split("(")[-1].split(" of ")[0])
+    assert simulated < 0.7 * len(cloud)  # 12.5 cm cells: ≈ 4 Gaussians per occupied cell before
+    assert f" of {len(cloud)} Gaussians simulated" in err
+
+    tracks = np.load(out / "tracks.npz")
+    assert tracks["x"].shape == (frames, len(cloud), 3)
+    for i in range(frames):
+        frame = read_splat(out / f"frame_{i:05d}.ply")
+        assert len(frame) == len(cloud)
+        np.testing.assert_array_equal(frame.means, tracks["x"][i])
+        np.testing.assert_array_equal(frame.get("segment"), cloud.get("segment"))  # file order kept
+    # the object's longest side (x, 2 input units) becomes 0.3 m: analytic scale, same for every path
+    scale = 0.3 / np.ptp(cloud.means, axis=0).max()
+    disp = tracks["x"] - cloud.means
+    for i in range(1, frames):
+        expected = 0.5 * G * (i / fps) ** 2 / scale
+        np.testing.assert_allclose(disp[i][:, 1], -expected, rtol=0.02)  # every Gaussian, carried or not
+        np.testing.assert_allclose(disp[i][:, [0, 2]], 0.0, atol=0.01 * expected)

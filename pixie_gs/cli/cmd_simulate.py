@@ -37,6 +37,9 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--spawn", action="store_true", help="stream the run live to a rerun viewer")
     p.add_argument("--fill", action="store_true", help="fill the enclosed interior of solid objects with particles "
                    "(default: automatic for a prepared object that is a closed surface shell)")
+    p.add_argument("--per-cell", type=int, metavar="N", help="simulate at most N Gaussians per grid cell and "
+                   "move the others with their nearest simulated one of the same material (frames still hold "
+                   "every Gaussian); much faster on dense captures. Default: simulate all")
     add_prepare_options(p)
     p.add_argument("--force", action="store_true", help="overwrite earlier frames in DIR")
     add_drop_invalid_option(p)
@@ -74,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--frames must be ≥ 1, got {args.frames}")
     if not FPS_RANGE[0] <= args.fps <= FPS_RANGE[1]:
         raise InputError(f"--fps must be within {FPS_RANGE[0]:g}..{FPS_RANGE[1]:g} frames per second, got {args.fps:g}")
+    if args.per_cell is not None and args.per_cell < 1:
+        raise InputError(f"--per-cell must be ≥ 1, got {args.per_cell}")
     cloud = read_splat_valid(args.input, args.drop_invalid)
     material_arrays(cloud)  # one-line error before anything is created
     scene = load_scene(args)
@@ -115,7 +120,12 @@ def run(args: argparse.Namespace) -> int:
 
             traj = simulate_prepared(prepared_cloud, prepared, scene, args.frames, args.fps, device=args.device,
                                      on_frame=on_frame, fill=True if args.fill else None,
-                                     positions_out=writer.positions)
+                                     positions_out=writer.positions, per_cell=args.per_cell)
+        elif args.per_cell is not None:
+            from ..sim.subsample import simulate_per_cell
+
+            traj = simulate_per_cell(cloud, scene, args.frames, args.fps, args.per_cell, device=args.device,
+                                     on_frame=on_frame, fill=args.fill, positions_out=writer.positions)
         else:
             traj = simulate(cloud, scene, args.frames, args.fps, device=args.device, on_frame=on_frame,
                             fill=args.fill, positions_out=writer.positions)
@@ -128,6 +138,8 @@ def run(args: argparse.Namespace) -> int:
         viz.discard_recording(rec)
         raise
     stage(f"wrote {args.frames} frames, {tracks.name} and {preview.name} to {args.out}"
+          + (f" ({traj.simulated} of {len(cloud)} Gaussians simulated, the others carried)"
+             if traj.simulated is not None else "")
           + (f" (+{traj.filled} interior particles simulated)" if traj.filled else "")
           + (f"; rerun recording {saved}" if saved else ""))
     if args.render:

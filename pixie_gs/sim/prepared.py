@@ -70,9 +70,11 @@ def is_closed_shell(placed: PreparedPlacement) -> bool:
 
 def simulate_prepared(cloud: SplatCloud, prepared, scene: Scene, frames: int, fps: float, device: str = "auto",
                       on_frame: Callable[[FrameState], None] | None = None, fill: bool | None = None,
-                      positions_out: np.ndarray | None = None) -> Trajectory:
+                      positions_out: np.ndarray | None = None, per_cell: int | None = None) -> Trajectory:
     """Simulate the objects of a prepared, annotated `cloud`; frames hold every Gaussian in file
-    coordinates (the others unchanged). `fill` None: decided by `is_closed_shell` (said)."""
+    coordinates (the others unchanged). `fill` None: decided by `is_closed_shell` (said).
+    `per_cell`: simulate at most this many object Gaussians per grid cell and carry the others
+    (see sim/subsample.py); `Trajectory.simulated` then says how many were simulated."""
     placed = place_prepared(cloud, prepared, scene)
     if fill is None:
         fill = is_closed_shell(placed)
@@ -96,6 +98,12 @@ def simulate_prepared(cloud: SplatCloud, prepared, scene: Scene, frames: int, fp
         if on_frame is not None:
             on_frame(FrameState(state.index, state.time_s, x, xw, F))
 
-    traj = simulate(placed.part, placed.scene, frames, fps, device=device, on_frame=expand, fill=fill)
+    if per_cell is None:
+        traj = simulate(placed.part, placed.scene, frames, fps, device=device, on_frame=expand, fill=fill)
+    else:
+        from .subsample import simulate_per_cell
+
+        traj = simulate_per_cell(placed.part, placed.scene, frames, fps, per_cell, device=device,
+                                 on_frame=expand, fill=fill)
     return Trajectory(t=traj.t, x=xs, transform=placed.transform, dt_s=traj.dt_s,
-                      substeps_per_frame=traj.substeps_per_frame, filled=traj.filled)
+                      substeps_per_frame=traj.substeps_per_frame, filled=traj.filled, simulated=traj.simulated)

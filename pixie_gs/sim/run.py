@@ -181,6 +181,7 @@ class Trajectory:
     dt_s: float = float("nan")  # stable substep of the elastic CFL (s)
     substeps_per_frame: int = 0  # substeps the last frame took
     filled: int = 0  # interior particles simulated but not output
+    simulated: int | None = None  # Gaussians simulated when the others were carried (sim/subsample.py)
 
     def __len__(self) -> int:
         return len(self.t)
