@@ -79,7 +79,7 @@ def test_annotate_cli_keeps_every_input_property(can_splat, tmp_path):
     assert can_splat.read_bytes() == before  # the input is never modified
     src, dst = read_splat(can_splat), read_splat(out)
     assert dst.property_order[:len(src.property_order)] == src.property_order
-    assert dst.property_order[len(src.property_order):] == ["material_id", "E", "nu", "density"]
+    assert dst.property_order[len(src.property_order):] == ["material_id", "E", "nu", "density", "confidence"]
     for name in src.extras:
         assert np.array_equal(src.extras[name], dst.extras[name]) and src.extras[name].dtype == dst.extras[name].dtype
     for attr in ("means", "log_scales", "rotations", "opacity_logits", "sh_dc", "sh_rest"):

@@ -208,6 +208,14 @@ def test_annotate_prepares_a_tilted_capture_with_no_flag(tmp_path):
     mid = res.get("material_id")
     assert np.all(mid[:n_floor][np.abs(np.asarray(res.means[:n_floor]) @ (tilt @ [0, 0, 1])) < 0.01] == 6)
     assert [p for p in res.property_order if p in ("role", "object_id")] == []
+    # the prepared path keeps the model's confidence and records the up it used, so a later
+    # `pixie simulate` of this file turns it the same way (declared, not estimated again)
+    assert res.has("confidence") and np.isfinite(res.get("confidence")).all()
+    declared = [c for c in res.comments if c.startswith("pixie up ")]
+    assert len(declared) == 1
+    assert angle_deg([float(w) for w in declared[0].split()[2:]], side["up"]) < 1e-3
+    _, again = prepare_cloud(res)
+    assert again.up_method == "declared by the file" and angle_deg(again.up_vector, side["up"]) < 1e-3
 
 
 def test_bad_crop_and_up_fail_cleanly(tmp_path, capsys):

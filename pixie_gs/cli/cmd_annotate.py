@@ -47,9 +47,7 @@ def run(args: argparse.Namespace) -> int:
     out = annotate_cloud(prepared_cloud, args.checkpoint, args.device, given_up if given_up is not None else "z",
                          prepared=prepared)
     if prepared is not None:  # the output keeps the input's properties + materials (roles: `pixie prepare`)
-        mid, E, nu, rho = out.get_materials()
-        out = cloud.copy()
-        out.set_materials(mid, E, nu, rho)
+        out = _input_with_results(cloud, out, prepared.up_vector)
     if args.rrd:
         from ..viz import log_material_views, recording, send_layout
 
@@ -65,3 +63,20 @@ def run(args: argparse.Namespace) -> int:
         print(f"{MATERIAL_NAMES.get(int(m), str(m)):<13} {int(sel.sum()):>9} gaussians  E {np.median(E[sel]):.3g} Pa  "
               f"nu {np.median(nu[sel]):.3f}  density {np.median(rho[sel]):.4g} kg/m3")
     return 0
+
+
+def _input_with_results(cloud, annotated, up_vector):
+    """The input cloud plus the materials and confidence of `annotated`, and the up vector the
+    preparation used as a `pixie up X Y Z` header comment, so `pixie simulate` on this file
+    turns it the same way instead of estimating up again."""
+    from ..prepare.updir import DECLARED_PREFIX, declared_up
+
+    out = cloud.copy()
+    out.set_materials(*annotated.get_materials())
+    if annotated.has("confidence"):
+        out.set("confidence", annotated.get("confidence"))
+    if declared_up(out.comments) is None:
+        x, y, z = (float(v) for v in up_vector)
+        out.comments = list(out.comments) + [f"{DECLARED_PREFIX} {x:.6g} {y:.6g} {z:.6g}"]
+    return out
+
