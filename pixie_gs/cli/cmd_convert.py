@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
 def convert_splat(args: argparse.Namespace, source_format: str):
     """Rewrite the splat IN in OUT's format, saying what a lossy target drops."""
     from ..errors import InputError
-    from ..formats import LABELS, format_for_path, lossy_note, normalise_format, write_any
+    from ..formats import LABELS, format_for_path, normalise_format
     from ..progress import stage
     from ..splat import read_splat_valid
 
@@ -97,11 +97,7 @@ def convert_splat(args: argparse.Namespace, source_format: str):
     target = normalise_format(args.format) if args.format else format_for_path(args.out)
     cloud = read_splat_valid(args.mesh, args.drop_invalid)
     stage(f"read {len(cloud)} Gaussians ({LABELS[source_format]}, SH degree {cloud.sh_degree}) from {args.mesh}")
-    note = lossy_note(cloud, target)
-    if note:
-        stage(f"lossy: {note}")
-    write_any(cloud, args.out, target)
-    stage(f"wrote {len(cloud)} Gaussians to {args.out} ({LABELS[target]})")
+    write_converted(cloud, args.out, target)
     return cloud
 
 
@@ -116,7 +112,7 @@ def convert_mesh(args: argparse.Namespace):
 
     from ..convert import load_mesh, mesh_to_splat
     from ..errors import InputError
-    from ..formats import LABELS, format_for_path, lossy_note, normalise_format, write_any
+    from ..formats import format_for_path, normalise_format
     from ..progress import stage
 
     count = 100_000 if args.count is None else args.count
@@ -131,11 +127,7 @@ def convert_mesh(args: argparse.Namespace):
     cloud = mesh_to_splat(mesh, count, np.random.default_rng(args.seed), fill=args.fill, n_fill=args.fill_count)
     if Path(args.mesh).suffix.lower() in (".glb", ".gltf"):
         cloud.comments.append(GLTF_UP_COMMENT)  # the glTF spec defines +Y as up; pixie prepare honours it
-    note = lossy_note(cloud, target)
-    if note:
-        stage(f"lossy: {note}")
-    write_any(cloud, args.out, target)
-    stage(f"wrote {len(cloud)} Gaussians to {args.out} ({LABELS[target]})")
+    write_converted(cloud, args.out, target)
     return cloud
 
 
@@ -147,3 +139,16 @@ def write_preview(cloud, png: str, up: str = "z") -> None:
     azimuths = (0, 90, 180, 270)
     views = [render_points(cloud.means, cloud.rgb(), azimuth_deg=az, up=up, bounds=bounds) for az in azimuths]
     save_png(contact_sheet(views, [f"azimuth {az} deg" for az in azimuths], columns=4), png)
+
+
+def write_converted(cloud, out, target: str) -> None:
+    """Write `cloud` to `out` in format `target`, saying first what a lossy format drops."""
+    from ..formats import LABELS, lossy_note, write_any
+    from ..progress import stage
+
+    note = lossy_note(cloud, target)
+    if note:
+        stage(f"lossy: {note}")
+    write_any(cloud, out, target)
+    stage(f"wrote {len(cloud)} Gaussians to {out} ({LABELS[target]})")
+
