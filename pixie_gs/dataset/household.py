@@ -12,7 +12,7 @@ import numpy as np
 import trimesh
 
 from .primitives import box, concatenate, ellipsoid, lathe, tapered_segment
-from .shapes import Piece, _round, jitter, pick, recipe
+from .shapes import Piece, _round, jitter, lay_on_side, pick, recipe
 
 WOODS = [(0.55, 0.38, 0.22), (0.45, 0.30, 0.18), (0.68, 0.52, 0.34), (0.35, 0.22, 0.13), (0.78, 0.64, 0.45),
          (0.25, 0.16, 0.10)]
@@ -186,10 +186,7 @@ def bottle(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
         pieces.append(Piece(part, band, jitter(rng, tuple(rng.uniform(0.1, 0.95, 3)), 0.05), 0.05))
     lying = rng.random() < 0.2
     if lying:
-        T = _rot([1, 0, 0], math.pi / 2)
-        T[:3, 3] = [0.0, h / 2, r]
-        for p in pieces:
-            p.mesh.apply_transform(T)
+        lay_on_side(pieces, h, r)
     return pieces, _round({"height_m": h, "radius_m": r, "lying": lying})
 
 

@@ -417,11 +417,17 @@ def soda_can(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
         pieces.append(Piece("can", band, paint if k != 1 else accent, 0.03))
     lying = rng.random() < 0.25
     if lying:
-        T = trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0])
-        T[:3, 3] = [0.0, h / 2, r]
-        for p in pieces:
-            p.mesh.apply_transform(T)
+        lay_on_side(pieces, h, r)
     return pieces, _round({"radius_m": r, "height_m": h, "lying": lying})
+
+
+def lay_on_side(pieces: list[Piece], height_m: float, radius_m: float) -> None:
+    """Turn an upright (z-axis) cylinder-like object of `height_m` and `radius_m` onto its side,
+    resting on the ground (z = 0) and centred where it stood."""
+    T = trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0])
+    T[:3, 3] = [0.0, height_m / 2, radius_m]
+    for piece in pieces:
+        piece.mesh.apply_transform(T)
 
 
 @recipe("metal_crate")
