@@ -172,8 +172,8 @@ def test_damaged_checkpoint_payloads_are_refused_in_one_line(tmp_path, capsys, k
         assert rc == 1 and "NaN" in one_error_line(err)
 
 
-def test_finite_weights_that_overflow_give_exit_3_and_no_file(tmp_path, capsys):
-    """A checkpoint whose (finite) weights overflow to NaN materials: a failed computation, not a file."""
+def _overflowing_checkpoint(tmp_path: Path) -> Path:
+    """A checkpoint with finite weights scaled by 1e38: its predictions overflow to NaN."""
     import torch
 
     p = _payload()
@@ -181,6 +181,12 @@ def test_finite_weights_that_overflow_give_exit_3_and_no_file(tmp_path, capsys):
     p["state_dict"][key] = p["state_dict"][key] * 1e38
     ckpt = tmp_path / "overflow.pt"
     torch.save(p, ckpt)
+    return ckpt
+
+
+def test_finite_weights_that_overflow_give_exit_3_and_no_file(tmp_path, capsys):
+    """A checkpoint whose (finite) weights overflow to NaN materials: a failed computation, not a file."""
+    ckpt = _overflowing_checkpoint(tmp_path)
     splat = write_ply(tmp_path / "s.ply", vertex_table(n=80))
     rc, err = run_cli(["annotate", splat, tmp_path / "o.ply", "--checkpoint", ckpt, "--device", "cpu", "-q"], capsys)
     assert rc == 3 and "not finite" in one_error_line(err)
@@ -189,13 +195,7 @@ def test_finite_weights_that_overflow_give_exit_3_and_no_file(tmp_path, capsys):
 
 def test_evaluate_with_nan_metrics_is_exit_3_and_writes_no_json(tmp_path, capsys):
     """`evaluate` used to report success with NaN metrics; now a failed computation, no --json file."""
-    import torch
-
-    p = _payload()
-    key = next(k for k in p["state_dict"] if k.startswith("projector") and k.endswith("weight"))
-    p["state_dict"][key] = p["state_dict"][key] * 1e38
-    ckpt = tmp_path / "overflow.pt"
-    torch.save(p, ckpt)
+    ckpt = _overflowing_checkpoint(tmp_path)
     assert main(["generate", str(tmp_path / "data"), "--count", "2", "--split", "test", "--gaussians", "200", "-q"]) == 0
     capsys.readouterr()
     rc, err = run_cli(["evaluate", ckpt, tmp_path / "data", "--device", "cpu", "--json", tmp_path / "m.json", "-q"],
