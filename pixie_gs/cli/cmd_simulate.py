@@ -170,12 +170,13 @@ def _prepare(cloud, args: argparse.Namespace, scene):
     from ..prepare import parse_crop, parse_up
     from .cmd_prepare import prepare_from_args
 
-    parse_up(args.up)
+    given_up = parse_up(args.up)
     parse_crop(args.crop)
-    if parse_up(args.up) is None and args.scene and scene.up != "z":
+    if given_up is None and args.scene and scene.up != "z":
         args.up = scene.up  # the scene file names the up axis: that is a given up
+        given_up = parse_up(args.up)
     if args.no_prepare:
-        if parse_up(args.up) is not None and args.up.lstrip("+") in ("x", "y", "z", "-x", "-y", "-z"):
+        if given_up is not None and args.up.lstrip("+") in ("x", "y", "z", "-x", "-y", "-z"):
             scene.up = args.up.lstrip("+")
         return cloud, None
     return prepare_from_args(cloud, args)
