@@ -32,6 +32,7 @@ from .particles import Particles
 from .reduce import FrameStats, StatsReducer, reference_stats
 from .scene import BOUNDARY_CELLS, Scene
 from .sort import cell_order, cell_runs, chunk_runs, permute_in_place
+from .state import ARRAY_FIELDS, State
 
 CHUNK = 8  # particles per P2G thread while the particles are in no cell order (sort_every = 0)
 SORT_SUBSTEPS = 4  # with sorting on, the chunked P2G's cell order is refreshed every this many substeps
@@ -51,6 +52,32 @@ def lame_parameters(E_pa: np.ndarray, nu: np.ndarray) -> tuple[np.ndarray, np.nd
     """(μ, λ) in Pa from Young's modulus and Poisson ratio."""
     E, nu = np.asarray(E_pa, dtype=np.float64), np.asarray(nu, dtype=np.float64)
     return E / (2.0 * (1.0 + nu)), E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+
+
+def held_particles(particles: Particles, scene: Scene) -> np.ndarray:
+    """Mask (N,) of particles held in place: fixed, stationary material, or named by scene.fixed."""
+    fixed = particles.fixed | (particles.material_id == STATIONARY)
+    for spec in scene.fixed:
+        if spec.region is not None:
+            fixed |= spec.region.contains(particles.x)
+        if spec.part_ids:
+            fixed |= np.isin(particles.part_id, spec.part_ids)
+    return fixed
+
+
+def yield_stresses(particles: Particles, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """(yield stress (N,) Pa the kernels use — NO_YIELD for none —, mask of those set from the
+    scene's default yield strain × E for metal and visco-plastic particles without their own)."""
+    ys = particles.yield_stress.astype(np.float64).copy()
+    from_strain = np.zeros(len(ys), bool)
+    mats = scene.materials
+    E = particles.E.astype(np.float64)
+    for mid, strain in ((METAL, mats.metal_yield_strain), (VISCOPLASTIC, mats.viscoplastic_yield_strain)):
+        default = (particles.material_id == mid) & ~np.isfinite(ys)
+        ys[default] = strain * E[default]
+        from_strain |= default
+    ys[~np.isfinite(ys)] = NO_YIELD
+    return ys, from_strain
 
 
 class MPMSolver:
@@ -104,12 +131,7 @@ class MPMSolver:
         self._check_inside(particles.x)
 
         self.material_id = particles.material_id.copy()
-        fixed = particles.fixed | (particles.material_id == STATIONARY)
-        for spec in scene.fixed:
-            if spec.region is not None:
-                fixed |= spec.region.contains(particles.x)
-            if spec.part_ids:
-                fixed |= np.isin(particles.part_id, spec.part_ids)
+        fixed = held_particles(particles, scene)
         self.fixed = fixed
         self._E = particles.E.astype(np.float64)
         self._nu = particles.nu.astype(np.float64)
@@ -117,23 +139,12 @@ class MPMSolver:
         self._moving = ~fixed
         self._moving_snow = self._moving & (self.material_id == SNOW)  # hardening changes their CFL
 
-        ys = particles.yield_stress.astype(np.float64).copy()
-        self._yield_from_strain = np.zeros(self.n, bool)  # yield = strain · E (scaled with a stiffness cap)
-        mats = scene.materials
-        for mid, strain in ((METAL, mats.metal_yield_strain), (VISCOPLASTIC, mats.viscoplastic_yield_strain)):
-            default = (self.material_id == mid) & ~np.isfinite(ys)
-            ys[default] = strain * self._E[default]
-            self._yield_from_strain |= default
-        ys[~np.isfinite(ys)] = NO_YIELD
+        ys, self._yield_from_strain = yield_stresses(particles, scene)  # from strain: scaled with a cap
         self._yield_base = ys.copy()
 
         d = self.device
         v0 = np.where(fixed[:, None], 0.0, particles.v).astype(np.float32)
-        self.x = wp.array(particles.x, dtype=wp.vec3, device=d)
-        self.v = wp.array(v0, dtype=wp.vec3, device=d)
-        self.C = wp.zeros(self.n, dtype=wp.mat33, device=d)
-        self.stress = wp.zeros(self.n, dtype=wp.mat33, device=d)  # Kirchhoff τ (Pa) after the last G2P
-        self.F = wp.array(np.tile(np.eye(3, dtype=np.float32), (self.n, 1, 1)), dtype=wp.mat33, device=d)
+        self.state = State.at_rest(particles.x, v0, d)  # x, v, C, F, stress (τ, Pa), Jp: sim/state.py
         self.volume = wp.array(particles.volume, dtype=float, device=d)
         self.mass = wp.array(particles.mass, dtype=float, device=d)
         self.mu = wp.zeros(self.n, dtype=float, device=d)
@@ -142,7 +153,6 @@ class MPMSolver:
         self._set_stiffness(np.ones(self.n))
         self.yield_stress = wp.array(ys.astype(np.float32), dtype=float, device=d)
         self.material = wp.array(self.material_id, dtype=wp.int32, device=d)
-        self.Jp = wp.ones(self.n, dtype=float, device=d)
         self.fixed_flag = wp.array(fixed.astype(np.int32), dtype=wp.int32, device=d)
         self.order = wp.array(np.arange(self.n, dtype=np.int32), dtype=wp.int32, device=d)  # slot → index
         self.run_start = wp.zeros(self.n + 1, dtype=wp.int32, device=d)  # P2G thread t: run_start[t] ≤ p < [t+1]
@@ -168,6 +178,53 @@ class MPMSolver:
         self._record_launches()
         if self.sort_every > 0:
             self._resort()
+
+    # ------------------------------------------------------------------ state (sim/state.py)
+    x = property(lambda self: self.state.x, lambda self, a: setattr(self.state, "x", a))
+    v = property(lambda self: self.state.v, lambda self, a: setattr(self.state, "v", a))
+    C = property(lambda self: self.state.C, lambda self, a: setattr(self.state, "C", a))
+    F = property(lambda self: self.state.F, lambda self, a: setattr(self.state, "F", a))
+    stress = property(lambda self: self.state.stress, lambda self, a: setattr(self.state, "stress", a))
+    Jp = property(lambda self: self.state.Jp, lambda self, a: setattr(self.state, "Jp", a))
+
+    def new_state(self) -> State:
+        """A copy of the solver's own state (slot order, same time) for step() to advance."""
+        out = self.state.clone()
+        out.time_s = self.time_s
+        return out
+
+    def step(self, state_in: State, state_out: State, dt: float) -> None:
+        """One substep of `dt` s from `state_in` to `state_out` (the same object: in place).
+
+        Both states are in this solver's slot order (make them with new_state()); the solver's
+        own state and clock are untouched. Impulses with time_s in [state_in.time_s,
+        state_in.time_s + dt) are applied first; state_out.time_s = state_in.time_s + dt.
+        No CFL choice and no guard here: that is step_frame's job (dt is the caller's)."""
+        if len(state_in) != self.n or len(state_out) != self.n:
+            raise ValueError(f"states must hold this solver's {self.n} particles")
+        if state_out is not state_in:
+            state_out.assign(state_in)
+        t = state_in.time_s
+        own = self.state
+        self.state = state_out
+        self._bind_state()
+        try:
+            for imp in self.scene.impulses:
+                if t <= imp.time_s < t + dt:
+                    self._launch_impulse(imp)
+            self._substep(dt, t)
+        finally:
+            self.state = own
+            self._bind_state()
+        state_out.time_s = t + dt
+
+    def _bind_state(self) -> None:
+        """Point the recorded P2G and G2P launches at self.state's arrays."""
+        for launch in (self._p2g, self._g2p):
+            takes = {arg.label for arg in launch.kernel.adj.args}
+            for name in ARRAY_FIELDS:
+                if name in takes:
+                    launch.set_param_by_name(name, getattr(self.state, name))
 
     # ------------------------------------------------------------------ set-up helpers
     def _check_inside(self, x: np.ndarray) -> None:
@@ -365,6 +422,7 @@ class MPMSolver:
             self._substep(dt, t)
         t_launched = clock()
         self.time_s = t0 + frame_dt_s
+        self.state.time_s = self.time_s
         self.frame += 1
         self.substeps_last_frame = n_sub
         self.particle_substeps += n_sub * self.n
@@ -376,11 +434,14 @@ class MPMSolver:
         for i, imp in enumerate(self.scene.impulses):
             if self._impulse_done[i] or imp.time_s >= t_end:
                 continue
-            lo, hi = ((-FAR,) * 3, (FAR,) * 3) if imp.region is None else (imp.region.min, imp.region.max)
-            wp.launch(kernels.add_velocity_in_region, dim=self.n, device=self.device,
-                      inputs=[self.x, self.v, self.fixed_flag, wp.vec3(*lo), wp.vec3(*hi),
-                              wp.vec3(*imp.velocity_change)])
+            self._launch_impulse(imp)
             self._impulse_done[i] = True
+
+    def _launch_impulse(self, imp) -> None:
+        lo, hi = ((-FAR,) * 3, (FAR,) * 3) if imp.region is None else (imp.region.min, imp.region.max)
+        wp.launch(kernels.add_velocity_in_region, dim=self.n, device=self.device,
+                  inputs=[self.x, self.v, self.fixed_flag, wp.vec3(*lo), wp.vec3(*hi),
+                          wp.vec3(*imp.velocity_change)])
 
     def _active_box(self) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
         """Grid nodes the particles touch this substep (CPU: tight box; GPU: the whole grid)."""

@@ -1,0 +1,210 @@
+"""Warp kernels of one MLS-MPM substep for a BATCH of independent runs in one launch.
+
+K runs (candidate parameter sets of one object, or different objects on the same grid) form one
+particle set; `run[p]` says which run particle p belongs to, and each run has its own grid
+(the grid arrays are 4-D: run, i, j, k), its own substep dt (s) and count, and its own scene
+scalars (gravity, wind, damping, drag, ground). A run whose frame is done (`substep ≥ n_sub[r]`)
+or that has failed sits out (its particles and nodes are skipped), so every run takes exactly
+the substeps it would take alone. The arithmetic follows sim/kernels.py (p2g, grid_update, g2p)
+term by term, so on the CPU (where Warp runs a launch's threads in order) a batched run gives
+the same numbers as the unbatched solver with the particles in the same order; the tests check
+that against separate MPMSolver runs.
+"""
+from __future__ import annotations
+
+import warp as wp
+
+from .constitutive import MaterialParams, update_material
+from .kernels import GridInfo, bspline_weights, stencil_of
+
+
+@wp.func
+def run_active(r: int, substep: int, n_sub: wp.array(dtype=wp.int32)) -> bool:
+    return substep < n_sub[r]
+
+
+@wp.kernel
+def p2g_batched(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33),
+                stress: wp.array(dtype=wp.mat33), volume: wp.array(dtype=float), mass: wp.array(dtype=float),
+                fixed: wp.array(dtype=wp.int32), run: wp.array(dtype=wp.int32), grid: GridInfo,
+                dt_run: wp.array(dtype=float), n_sub: wp.array(dtype=wp.int32), substep: int,
+                grid_mass: wp.array4d(dtype=float), grid_momentum: wp.array4d(dtype=wp.vec3),
+                grid_fixed: wp.array4d(dtype=float)):
+    """kernels.p2g into the grid of the particle's run."""
+    p = wp.tid()
+    r = run[p]
+    if not run_active(r, substep, n_sub):
+        return
+    dt = dt_run[r]
+    base, fx = stencil_of(x[p], grid)
+    wx = bspline_weights(fx[0])
+    wy = bspline_weights(fx[1])
+    wz = bspline_weights(fx[2])
+    m = mass[p]
+    is_fixed = fixed[p]
+    affine = (-dt * volume[p] * 4.0 * grid.inv_dx * grid.inv_dx) * stress[p] + m * C[p]
+    mv = m * v[p]
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                w = wx[i] * wy[j] * wz[k]
+                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * grid.dx
+                gi = base[0] + i
+                gj = base[1] + j
+                gk = base[2] + k
+                wp.atomic_add(grid_momentum, r, gi, gj, gk, w * (mv + affine * dpos))
+                wp.atomic_add(grid_mass, r, gi, gj, gk, w * m)
+                if is_fixed != 0:
+                    wp.atomic_add(grid_fixed, r, gi, gj, gk, w)
+
+
+@wp.struct
+class RunForces:
+    """Per-run scene scalars (arrays of K), winds flattened: run r owns winds
+    wind_first[r] ≤ w < wind_first[r+1]."""
+
+    gravity: wp.array(dtype=wp.vec3)  # m/s²
+    damping: wp.array(dtype=float)  # 1/s
+    air_drag: wp.array(dtype=float)  # 1/m
+    ground_enabled: wp.array(dtype=wp.int32)
+    ground_height: wp.array(dtype=float)  # m
+    friction: wp.array(dtype=float)  # Coulomb μ
+    wind_first: wp.array(dtype=wp.int32)
+    wind_acc: wp.array(dtype=wp.vec3)  # m/s²
+    wind_lo: wp.array(dtype=wp.vec3)  # m
+    wind_hi: wp.array(dtype=wp.vec3)  # m
+    wind_timing: wp.array(dtype=wp.vec4)  # start_s, end_s, gust amplitude, gust frequency (Hz)
+
+
+@wp.kernel
+def grid_update_batched(grid_mass: wp.array4d(dtype=float), grid_momentum: wp.array4d(dtype=wp.vec3),
+                        grid_fixed: wp.array4d(dtype=float), grid_velocity: wp.array4d(dtype=wp.vec3),
+                        grid: GridInfo, box_lo: wp.vec3i, dt_run: wp.array(dtype=float),
+                        n_sub: wp.array(dtype=wp.int32), substep: int, frame_start_s: wp.float64,
+                        dt_run64: wp.array(dtype=wp.float64), forces: RunForces, sticky_walls: int, boundary: int):
+    """kernels.grid_update on each active run's grid with that run's forces; time of run r is
+    frame_start_s + substep · dt_r (in float64, as the unbatched solver computes it on the host)."""
+    r, a, b, c = wp.tid()
+    if not run_active(r, substep, n_sub):
+        return
+    dt = dt_run[r]
+    time_s = float(frame_start_s + wp.float64(substep) * dt_run64[r])
+    i = a + box_lo[0]
+    j = b + box_lo[1]
+    k = c + box_lo[2]
+    m = grid_mass[r, i, j, k]
+    held = grid_fixed[r, i, j, k]
+    vel = wp.vec3(0.0)
+    if m > 0.0 and held <= 0.0:
+        vel = grid_momentum[r, i, j, k] / m
+        node = grid.origin + wp.vec3(float(i), float(j), float(k)) * grid.dx
+        acc = forces.gravity[r]
+        for w in range(forces.wind_first[r], forces.wind_first[r + 1]):
+            timing = forces.wind_timing[w]
+            lo = forces.wind_lo[w]
+            hi = forces.wind_hi[w]
+            inside = node[0] >= lo[0] and node[1] >= lo[1] and node[2] >= lo[2]
+            inside = inside and node[0] <= hi[0] and node[1] <= hi[1] and node[2] <= hi[2]
+            if inside and time_s >= timing[0] and time_s < timing[1]:
+                gust = 1.0 + timing[2] * wp.sin(2.0 * wp.pi * timing[3] * time_s)
+                acc = acc + gust * forces.wind_acc[w]
+        vel = vel + dt * acc
+        vel = vel * wp.exp(-forces.damping[r] * dt)
+        vel = vel / (1.0 + forces.air_drag[r] * wp.length(vel) * dt)
+        on_ground = node[2] <= forces.ground_height[r] or k < boundary
+        if forces.ground_enabled[r] != 0 and on_ground and vel[2] < 0.0:
+            vn = -vel[2]
+            vt = wp.vec3(vel[0], vel[1], 0.0)
+            speed_t = wp.length(vt)
+            friction = forces.friction[r]
+            if speed_t <= friction * vn:
+                vel = wp.vec3(0.0)
+            else:
+                vel = vt * (1.0 - friction * vn / speed_t)
+        idx = wp.vec3i(i, j, k)
+        for d in range(3):
+            low = idx[d] < boundary
+            high = idx[d] >= grid.dims[d] - boundary
+            if low or high:
+                if sticky_walls != 0:
+                    vel = wp.vec3(0.0)
+                elif (low and vel[d] < 0.0) or (high and vel[d] > 0.0):
+                    vel[d] = 0.0
+    grid_velocity[r, i, j, k] = vel
+    grid_mass[r, i, j, k] = 0.0
+    grid_momentum[r, i, j, k] = wp.vec3(0.0)
+    grid_fixed[r, i, j, k] = 0.0
+
+
+@wp.kernel
+def g2p_batched(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33),
+                F: wp.array(dtype=wp.mat33), mu: wp.array(dtype=float), lam: wp.array(dtype=float),
+                yield_stress: wp.array(dtype=float), material: wp.array(dtype=wp.int32), Jp: wp.array(dtype=float),
+                fixed: wp.array(dtype=wp.int32), run: wp.array(dtype=wp.int32), grid: GridInfo,
+                mp: MaterialParams, dt_run: wp.array(dtype=float), n_sub: wp.array(dtype=wp.int32), substep: int,
+                grid_velocity: wp.array4d(dtype=wp.vec3), stress: wp.array(dtype=wp.mat33)):
+    """kernels.g2p from the grid of the particle's run."""
+    p = wp.tid()
+    r = run[p]
+    if not run_active(r, substep, n_sub):
+        return
+    if fixed[p] != 0:
+        v[p] = wp.vec3(0.0)
+        C[p] = wp.mat33(0.0)
+        return
+    dt = dt_run[r]
+    base, fx = stencil_of(x[p], grid)
+    wx = bspline_weights(fx[0])
+    wy = bspline_weights(fx[1])
+    wz = bspline_weights(fx[2])
+    new_v = wp.vec3(0.0)
+    new_C = wp.mat33(0.0)
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                w = wx[i] * wy[j] * wz[k]
+                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * grid.dx
+                gv = grid_velocity[r, base[0] + i, base[1] + j, base[2] + k]
+                new_v = new_v + w * gv
+                new_C = new_C + (4.0 * grid.inv_dx * grid.inv_dx * w) * wp.outer(gv, dpos)
+    v[p] = new_v
+    C[p] = new_C
+    xn = (x[p] + dt * new_v - grid.origin) * grid.inv_dx
+    for d in range(3):
+        xn[d] = wp.clamp(xn[d], 1.0, float(grid.dims[d]) - 2.001)
+    x[p] = grid.origin + xn * grid.dx
+    Fn = (wp.identity(n=3, dtype=float) + dt * new_C) * F[p]
+    Fn, Jp_new, tau = update_material(Fn, new_C, mu[p], lam[p], material[p], yield_stress[p], Jp[p], dt, mp)
+    F[p] = Fn
+    Jp[p] = Jp_new
+    stress[p] = tau
+
+
+@wp.kernel
+def run_stats(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), F: wp.array(dtype=wp.mat33),
+              Jp: wp.array(dtype=float), material: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
+              wave_c: wp.array(dtype=float), run: wp.array(dtype=wp.int32), alive: wp.array(dtype=wp.int32),
+              snow_hardening: float, v_limit: wp.array(dtype=float), max_stretch: float,
+              maxima: wp.array2d(dtype=float), bad: wp.array2d(dtype=wp.int32)):
+    """reduce.particle_stats per run: maxima[r] ← (fastest moving particle m/s, fastest hardened
+    snow wave m/s); bad[r, material] += 1 per particle failing the guard (speed > v_limit[r])."""
+    p = wp.tid()
+    r = run[p]
+    if alive[r] == 0:
+        return
+    xp = x[p]
+    speed = wp.length(v[p])
+    Fp = F[p]
+    norm = wp.sqrt(wp.ddot(Fp, Fp))
+    J = wp.determinant(Fp)
+    finite = wp.isfinite(xp[0]) and wp.isfinite(xp[1]) and wp.isfinite(xp[2])
+    finite = finite and wp.isfinite(speed) and wp.isfinite(norm) and wp.isfinite(J)
+    if (not finite) or speed > v_limit[r] or norm > max_stretch or not (J > 1.0 / max_stretch):
+        wp.atomic_add(bad, r, material[p], 1)
+    elif fixed[p] == 0:
+        if speed > 0.0:
+            wp.atomic_max(maxima, r, 0, speed)
+        if material[p] == 5:  # snow (pixie_gs.materials.SNOW)
+            wave = wave_c[p] * wp.sqrt(wp.exp(snow_hardening * wp.max(0.0, 1.0 - Jp[p])))
+            if wave > 0.0:
+                wp.atomic_max(maxima, r, 1, wave)
