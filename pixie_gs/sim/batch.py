@@ -1,0 +1,437 @@
+"""Batched simulation: K independent runs on one grid shape advanced by ONE set of launches.
+
+Why: diagnose simulates 30–60 candidate variants of one object (a drag coefficient, a part's
+stiffness, ...). Each run of a few thousand particles is launch-bound on a GPU (a substep is three
+tiny kernels), so K runs one after the other cost K× the launch overhead; batched, they cost about
+one run's. The runs share a State (sim/state.py) — run r owns the particle slots
+offsets[r] ≤ p < offsets[r+1] — and a 4-D grid (one grid per run, so no run feels another), and
+each keeps its own scene forces, material arrays, substep count (CFL), impulses, stiffness cap
+and divergence guard: a batched run takes the same substeps with the same dt as it would alone
+(batch_kernels.py). A run that diverges is stopped and reported; the others go on.
+
+Runs must share the grid (domain origin, cell size, node counts), walls, constitutive settings
+(scene.materials) and solver settings; everything else may differ.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from ..errors import ComputationError, InputError
+from ..materials import MATERIAL_NAMES, SNOW
+from ..progress import progress, stage
+from ..splat import SplatCloud
+from . import batch_kernels as bk
+from . import kernels
+from .particles import Particles
+from .scene import BOUNDARY_CELLS, Scene
+from .solver import FAR, MAX_STRETCH, MPMSolver, held_particles, lame_parameters, p_wave_speed, yield_stresses
+from .state import State
+
+
+def batch_key(scene: Scene) -> tuple:
+    """What runs of one batch must share (grid, walls, materials and solver settings)."""
+    m, s = scene.materials, scene.solver
+    return (tuple(np.round(scene.domain_origin(), 9)), round(scene.dx, 12), tuple(scene.grid_dims), scene.walls,
+            tuple(vars(m).items()), (s.cfl, s.velocity_cfl, s.max_substeps_per_frame))
+
+
+@dataclass
+class _Run:
+    """Host-side bookkeeping of one run (arrays in its own particle order)."""
+
+    scene: Scene
+    start: int
+    stop: int
+    E: np.ndarray
+    nu: np.ndarray
+    wave_speed: np.ndarray
+    moving: np.ndarray
+    moving_snow: np.ndarray
+    yield_base: np.ndarray
+    yield_from_strain: np.ndarray
+    wind_peak: float
+    scale: np.ndarray
+    c_static: float = 0.0
+    stiffness_scale: float = 1.0
+    alive: bool = True
+    error: ComputationError | None = None
+    substeps_last_frame: int = 0
+    dt: float = math.inf
+
+
+class BatchedSolver:
+    """K MLS-MPM runs in one particle set and one launch per kernel and substep.
+
+    `runs`: (Particles, Scene) per run, world units (m, s, kg, Pa). Attributes: state (all
+    particles, run after run), offsets (K+1,), time_s, frame, errors (per run: None or the
+    ComputationError that stopped it), substeps_last_frame (per run).
+    """
+
+    def __init__(self, runs: list[tuple[Particles, Scene]], device: str = "cpu") -> None:
+        from ..devices import resolve_warp_device
+
+        if not runs:
+            raise InputError("a batch needs at least one run")
+        key = batch_key(runs[0][1])
+        for i, (_, sc) in enumerate(runs):
+            if batch_key(sc) != key:
+                raise InputError(f"run {i} does not share run 0's grid, walls, materials or solver settings; "
+                                 "batch only runs on the same grid")
+        self.device = d = resolve_warp_device(device)
+        self.scene = scene = runs[0][1]
+        self.k = len(runs)
+        self.dx = scene.dx
+        self.dims = scene.grid_dims
+        self.origin = scene.domain_origin()
+        counts = [len(p) for p, _ in runs]
+        self.offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        self.n = int(self.offsets[-1])
+        self.time_s = 0.0
+        self.frame = 0
+        self._runs: list[_Run] = []
+        fixed_all, ys_all, x_all, v_all = [], [], [], []
+        for r, (p, sc) in enumerate(runs):
+            p.validate()
+            MPMSolver._check_inside(self, p.x)
+            fixed = held_particles(p, sc)
+            ys, from_strain = yield_stresses(p, sc)
+            moving = ~fixed
+            winds = sum(float(np.linalg.norm(w.acceleration)) * (1.0 + w.gust_amplitude) for w in sc.wind)
+            self._runs.append(_Run(sc, int(self.offsets[r]), int(self.offsets[r + 1]), p.E.astype(np.float64),
+                                   p.nu.astype(np.float64), p_wave_speed(p.E, p.nu, p.density), moving,
+                                   moving & (p.material_id == SNOW), ys, from_strain, winds, np.ones(len(p))))
+            fixed_all.append(fixed)
+            ys_all.append(ys)
+            x_all.append(p.x)
+            v_all.append(np.where(fixed[:, None], 0.0, p.v))
+        cat = np.concatenate
+        self.material_id = cat([p.material_id for p, _ in runs]).astype(np.int32)
+        self.fixed = cat(fixed_all)
+        self.state = State.at_rest(cat(x_all), cat(v_all).astype(np.float32), d)
+        self.volume = wp.array(cat([p.volume for p, _ in runs]), dtype=float, device=d)
+        self.mass = wp.array(cat([p.mass for p, _ in runs]), dtype=float, device=d)
+        self.mu = wp.zeros(self.n, dtype=float, device=d)
+        self.lam = wp.zeros(self.n, dtype=float, device=d)
+        self.wave_c = wp.zeros(self.n, dtype=float, device=d)
+        self.yield_stress = wp.array(cat(ys_all).astype(np.float32), dtype=float, device=d)
+        self.material = wp.array(self.material_id, dtype=wp.int32, device=d)
+        self.fixed_flag = wp.array(self.fixed.astype(np.int32), dtype=wp.int32, device=d)
+        self.run = wp.array(np.repeat(np.arange(self.k, dtype=np.int32), counts), dtype=wp.int32, device=d)
+        for run in self._runs:
+            self._set_stiffness(run, run.scale)
+        shape = (self.k,) + tuple(self.dims)
+        self.grid_mass = wp.zeros(shape, dtype=float, device=d)
+        self.grid_momentum = wp.zeros(shape, dtype=wp.vec3, device=d)
+        self.grid_fixed = wp.zeros(shape, dtype=float, device=d)
+        self.grid_velocity = wp.zeros(shape, dtype=wp.vec3, device=d)
+        self.grid_info = kernels.GridInfo()
+        self.grid_info.origin = wp.vec3(*self.origin)
+        self.grid_info.dx = self.dx
+        self.grid_info.inv_dx = 1.0 / self.dx
+        self.grid_info.dims = wp.vec3i(*self.dims)
+        self.material_params = MPMSolver._material_params(self)  # reads only self.scene.materials
+        self.forces = self._forces([sc for _, sc in runs])
+        self.n_sub = wp.zeros(self.k, dtype=wp.int32, device=d)
+        self.dt_run = wp.zeros(self.k, dtype=float, device=d)
+        self.dt_run64 = wp.zeros(self.k, dtype=wp.float64, device=d)
+        self.alive_flag = wp.ones(self.k, dtype=wp.int32, device=d)
+        self.v_limit = wp.full(self.k, FAR, dtype=float, device=d)
+        self.maxima = wp.zeros((self.k, 2), dtype=float, device=d)
+        self.bad = wp.zeros((self.k, 7), dtype=wp.int32, device=d)
+        self._pending = [(r, i) for r, run in enumerate(self._runs) for i in range(len(run.scene.impulses))]
+        self._stats: tuple[np.ndarray, np.ndarray] | None = None
+        self._record_launches()
+
+    # ------------------------------------------------------------------ set-up
+    def _forces(self, scenes: list[Scene]) -> bk.RunForces:
+        d = self.device
+        f = bk.RunForces()
+        f.gravity = wp.array(np.array([sc.gravity for sc in scenes], np.float32), dtype=wp.vec3, device=d)
+        f.damping = wp.array(np.array([sc.damping for sc in scenes], np.float32), dtype=float, device=d)
+        f.air_drag = wp.array(np.array([sc.air_drag for sc in scenes], np.float32), dtype=float, device=d)
+        f.ground_enabled = wp.array(np.array([int(sc.ground.enabled) for sc in scenes], np.int32), dtype=wp.int32,
+                                    device=d)
+        f.ground_height = wp.array(np.array([sc.ground.height_m for sc in scenes], np.float32), dtype=float, device=d)
+        f.friction = wp.array(np.array([sc.ground.friction for sc in scenes], np.float32), dtype=float, device=d)
+        first, acc, lo, hi, timing = [0], [], [], [], []
+        for sc in scenes:
+            for w in sc.wind:
+                acc.append(w.acceleration)
+                lo.append((-FAR,) * 3 if w.region is None else w.region.min)
+                hi.append((FAR,) * 3 if w.region is None else w.region.max)
+                timing.append((w.start_s, FAR if w.end_s is None else w.end_s, w.gust_amplitude, w.gust_frequency_hz))
+            first.append(len(acc))
+        if not acc:  # Warp arrays of length 0 are fine, but keep one harmless entry for clarity
+            acc, lo, hi, timing = [(0.0,) * 3], [(0.0,) * 3], [(0.0,) * 3], [(0.0,) * 4]
+        f.wind_first = wp.array(np.array(first, np.int32), dtype=wp.int32, device=d)
+        f.wind_acc = wp.array(np.array(acc, np.float32), dtype=wp.vec3, device=d)
+        f.wind_lo = wp.array(np.array(lo, np.float32), dtype=wp.vec3, device=d)
+        f.wind_hi = wp.array(np.array(hi, np.float32), dtype=wp.vec3, device=d)
+        f.wind_timing = wp.array(np.array(timing, np.float32), dtype=wp.vec4, device=d)
+        return f
+
+    def _record_launches(self) -> None:
+        d, st = self.device, self.state
+        self._p2g = wp.launch(bk.p2g_batched, dim=self.n, device=d, record_cmd=True,
+                              inputs=[st.x, st.v, st.C, st.stress, self.volume, self.mass, self.fixed_flag, self.run,
+                                      self.grid_info, self.dt_run, self.n_sub, 0, self.grid_mass,
+                                      self.grid_momentum, self.grid_fixed])
+        self._grid = wp.launch(bk.grid_update_batched, dim=(self.k,) + tuple(self.dims), device=d, record_cmd=True,
+                               inputs=[self.grid_mass, self.grid_momentum, self.grid_fixed, self.grid_velocity,
+                                       self.grid_info, wp.vec3i(0, 0, 0), self.dt_run, self.n_sub, 0,
+                                       wp.float64(0.0), self.dt_run64, self.forces, int(self.scene.walls == "sticky"),
+                                       BOUNDARY_CELLS])
+        self._g2p = wp.launch(bk.g2p_batched, dim=self.n, device=d, record_cmd=True,
+                              inputs=[st.x, st.v, st.C, st.F, self.mu, self.lam, self.yield_stress, self.material,
+                                      st.Jp, self.fixed_flag, self.run, self.grid_info, self.material_params,
+                                      self.dt_run, self.n_sub, 0, self.grid_velocity, st.stress])
+
+    def _set_stiffness(self, run: _Run, scale: np.ndarray) -> None:
+        """μ, λ and wave speed of one run's particles for E·scale (MPMSolver._set_stiffness per run)."""
+        mu, lam = lame_parameters(run.E * scale, run.nu)
+        c = run.wave_speed * np.sqrt(scale)
+        a, b = run.start, run.stop
+        self.mu[a:b].assign(mu.astype(np.float32))
+        self.lam[a:b].assign(lam.astype(np.float32))
+        self.wave_c[a:b].assign(c.astype(np.float32))
+        static = run.moving & ~run.moving_snow
+        run.c_static = float(c[static].max()) if static.any() else 0.0
+        run.scale = scale
+
+    # ------------------------------------------------------------------ per-run CFL (as MPMSolver)
+    def _cfl_dt(self, c_mps: float) -> float:
+        return math.inf if c_mps == 0.0 else self.scene.solver.cfl * self.dx / c_mps
+
+    def _wave_speed(self, run: _Run, snow_wave: float) -> float:
+        return max(run.c_static, snow_wave) if run.moving_snow.any() else run.c_static
+
+    def _substeps(self, r: int, frame_dt_s: float, max_speed: float, snow_wave: float) -> int:
+        run = self._runs[r]
+        s = self.scene.solver
+        dt = self._cfl_dt(self._wave_speed(run, snow_wave))
+        n_elastic = math.ceil(frame_dt_s / dt) if math.isfinite(dt) else 1
+        if n_elastic > s.max_substeps_per_frame:
+            self._cap_stiffness(r, frame_dt_s)
+            n_elastic = math.ceil(frame_dt_s / self._cfl_dt(self._wave_speed(run, snow_wave)))
+        accel = float(np.linalg.norm(run.scene.gravity)) + run.wind_peak
+        kicks = sum(float(np.linalg.norm(run.scene.impulses[i].velocity_change)) for rr, i in self._pending
+                    if rr == r and run.scene.impulses[i].time_s < self.time_s + frame_dt_s)
+        v_bound = max_speed + accel * frame_dt_s + kicks
+        n_velocity = math.ceil(frame_dt_s * v_bound / (s.velocity_cfl * self.dx))
+        return int(min(max(1, n_elastic, n_velocity), s.max_substeps_per_frame))
+
+    def _cap_stiffness(self, r: int, frame_dt_s: float) -> None:
+        """MPMSolver._cap_stiffness for one run (its too-stiff parts softened, said in a stage line)."""
+        run = self._runs[r]
+        s = self.scene.solver
+        c_allowed = s.cfl * self.dx * s.max_substeps_per_frame / frame_dt_s
+        scale = np.minimum(1.0, (c_allowed / np.maximum(run.wave_speed, 1e-30)) ** 2) * 0.999
+        scale = np.where(run.wave_speed * np.sqrt(run.scale) > c_allowed, scale, run.scale)
+        self._set_stiffness(run, scale)
+        ys = np.where(run.yield_from_strain, run.yield_base * scale, run.yield_base)
+        self.yield_stress[run.start:run.stop].assign(ys.astype(np.float32))
+        run.stiffness_scale = float(scale[run.moving].min()) if run.moving.any() else 1.0
+        mids = self.material_id[run.start:run.stop]
+        softened = sorted({MATERIAL_NAMES[int(m)] for m in mids[(scale < 1.0) & run.moving]})
+        stage(f"run {r}: stiffness of {', '.join(softened)} capped at {run.stiffness_scale:.2g}×E to fit "
+              f"{s.max_substeps_per_frame} substeps per frame (raise solver.max_substeps_per_frame to avoid)")
+
+    # ------------------------------------------------------------------ stepping
+    def _reduce(self, v_limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-run (maxima (K,2): fastest particle, fastest snow wave; bad (K,7) per material)."""
+        self.v_limit.assign(v_limits.astype(np.float32))
+        self.alive_flag.assign(np.array([int(r.alive) for r in self._runs], np.int32))
+        self.maxima.zero_()
+        self.bad.zero_()
+        st = self.state
+        wp.launch(bk.run_stats, dim=self.n, device=self.device,
+                  inputs=[st.x, st.v, st.F, st.Jp, self.material, self.fixed_flag, self.wave_c, self.run,
+                          self.alive_flag, self.scene.materials.snow_hardening, self.v_limit, MAX_STRETCH,
+                          self.maxima, self.bad])
+        return self.maxima.numpy().astype(np.float64), self.bad.numpy()
+
+    @property
+    def alive(self) -> np.ndarray:
+        return np.array([r.alive for r in self._runs])
+
+    @property
+    def errors(self) -> list[ComputationError | None]:
+        return [r.error for r in self._runs]
+
+    @property
+    def substeps_last_frame(self) -> list[int]:
+        return [r.substeps_last_frame for r in self._runs]
+
+    @property
+    def stiffness_scales(self) -> list[float]:
+        return [r.stiffness_scale for r in self._runs]
+
+    def dt(self, r: int) -> float:
+        """Largest stable substep (s) of run r from the elastic CFL (as MPMSolver.dt)."""
+        run = self._runs[r]
+        snow = float(self._stats[0][r, 1]) if self._stats is not None else 0.0
+        return self._cfl_dt(self._wave_speed(run, snow))
+
+    def step_frame(self, frame_dt_s: float) -> None:
+        """Advance every live run by frame_dt_s seconds, each in its own ceil(frame_dt_s / dt_r)
+        substeps; a run that diverges is stopped (errors[r]) and the others continue."""
+        if not (frame_dt_s > 0.0 and math.isfinite(frame_dt_s)):
+            raise InputError(f"frame duration must be a positive number of seconds, got {frame_dt_s}")
+        if self._stats is None:
+            self._stats = self._reduce(np.full(self.k, FAR))
+        maxima = self._stats[0]
+        n_sub = np.zeros(self.k, np.int32)
+        for r, run in enumerate(self._runs):
+            if run.alive:
+                n_sub[r] = self._substeps(r, frame_dt_s, float(maxima[r, 0]), float(maxima[r, 1]))
+        dts = np.where(n_sub > 0, frame_dt_s / np.maximum(n_sub, 1), 0.0)
+        self.n_sub.assign(n_sub)
+        self.dt_run.assign(dts.astype(np.float32))
+        self.dt_run64.assign(dts)
+        t0 = self.time_s
+        self._grid.set_param_by_name("frame_start_s", wp.float64(t0))
+        self.grid_mass.zero_()
+        self.grid_momentum.zero_()
+        self.grid_fixed.zero_()
+        alive_slots = None
+        if self.device == "cpu" and not self.alive.all():
+            alive_slots = np.repeat(self.alive, np.diff(self.offsets))
+        for s in range(int(n_sub.max(initial=0))):
+            self._apply_impulses(s, t0, n_sub, dts)
+            self._launch_substep(s, alive_slots)
+        self.time_s = t0 + frame_dt_s
+        self.state.time_s = self.time_s
+        self.frame += 1
+        for r, run in enumerate(self._runs):
+            run.substeps_last_frame = int(n_sub[r])
+            if run.alive:
+                run.dt = float(dts[r])
+        v_limits = np.where(n_sub > 0, self.dx / np.where(dts > 0, dts, 1.0), FAR)
+        self._stats = self._reduce(v_limits)
+        self._guard(self._stats[1], v_limits)
+
+    def _apply_impulses(self, s: int, t0: float, n_sub: np.ndarray, dts: np.ndarray) -> None:
+        if not self._pending:
+            return
+        still = []
+        for r, i in self._pending:
+            run = self._runs[r]
+            imp = run.scene.impulses[i]
+            if not run.alive:
+                continue
+            if s >= n_sub[r] or imp.time_s >= (t0 + s * dts[r]) + dts[r]:
+                still.append((r, i))
+                continue
+            lo, hi = ((-FAR,) * 3, (FAR,) * 3) if imp.region is None else (imp.region.min, imp.region.max)
+            a, b = run.start, run.stop
+            wp.launch(kernels.add_velocity_in_region, dim=b - a, device=self.device,
+                      inputs=[self.state.x[a:b], self.state.v[a:b], self.fixed_flag[a:b], wp.vec3(*lo),
+                              wp.vec3(*hi), wp.vec3(*imp.velocity_change)])
+        self._pending = still
+
+    def _launch_substep(self, s: int, alive_slots: np.ndarray | None) -> None:
+        self._p2g.set_param_by_name("substep", s)
+        self._p2g.launch()
+        lo, shape = self._active_box(alive_slots)
+        self._grid.set_dim((self.k,) + shape)
+        self._grid.set_param_by_name("box_lo", wp.vec3i(*lo))
+        self._grid.set_param_by_name("substep", s)
+        self._grid.launch()
+        self._g2p.set_param_by_name("substep", s)
+        self._g2p.launch()
+
+    def _active_box(self, alive_slots: np.ndarray | None) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+        """Nodes any live run's particles touch (CPU: the union of tight boxes; GPU: the grid)."""
+        if self.device != "cpu":
+            return (0, 0, 0), tuple(self.dims)  # type: ignore[return-value]
+        x = self.state.x.numpy()
+        if alive_slots is not None:
+            x = x[alive_slots]
+        if len(x) == 0:
+            return (0, 0, 0), (1, 1, 1)
+        g = (x - self.origin) / self.dx
+        lo = np.maximum(np.floor(g.min(0) - 0.5).astype(int), 0)
+        hi = np.minimum(np.floor(g.max(0) - 0.5).astype(int) + 3, self.dims)
+        return tuple(int(a) for a in lo), tuple(int(b - a) for a, b in zip(lo, hi))  # type: ignore[return-value]
+
+    def _guard(self, bad: np.ndarray, v_limits: np.ndarray) -> None:
+        """Stop every live run with particles that went non-finite or ran away (MPMSolver._guard)."""
+        for r, run in enumerate(self._runs):
+            counts_all = bad[r]
+            if not run.alive or not counts_all.any():
+                continue
+            ids = np.nonzero(counts_all)[0]
+            counts = counts_all[ids]
+            worst = int(ids[np.argmax(counts)])
+            names = ", ".join(f"'{MATERIAL_NAMES[int(m)]}' ({int(c)})" for m, c in zip(ids, counts))
+            run.alive = False
+            run.error = ComputationError(
+                f"simulation diverged at frame {self.frame} (t={self.time_s:.4g} s): material "
+                f"'{MATERIAL_NAMES[worst]}' particles ({int(counts.sum())} of {run.stop - run.start}: {names}) "
+                f"reached non-finite or runaway velocity/deformation (limit {v_limits[r]:.3g} m/s, "
+                f"‖F‖ ≤ {MAX_STRETCH:g}); lower solver.cfl or check E/nu/density")
+
+    # ------------------------------------------------------------------ results
+    def positions(self, r: int | None = None) -> np.ndarray:
+        """Positions (N_r,3) float32 world m of run r (None: every particle, run after run)."""
+        x = self.state.x.numpy()
+        return x.copy() if r is None else x[self.offsets[r]:self.offsets[r + 1]].copy()
+
+    def deformation_gradients(self, r: int) -> np.ndarray:
+        """F (N_r,3,3) float32 of run r."""
+        return self.state.F.numpy()[self.offsets[r]:self.offsets[r + 1]].copy()
+
+    def velocities(self, r: int) -> np.ndarray:
+        """Velocities (N_r,3) float32 m/s of run r."""
+        return self.state.v.numpy()[self.offsets[r]:self.offsets[r + 1]].copy()
+
+
+def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: float, device: str = "auto",
+                   fill: bool = False, quiet: bool = True) -> list:
+    """`sim.run.simulate` for several (cloud, scene) models at once, on one shared grid shape:
+    one Trajectory per model, or the ComputationError that stopped that model's run (the others
+    still finish). Raises InputError for unusable input (as simulate does)."""
+    from .run import Trajectory, build_particles
+
+    if frames < 1:
+        raise InputError(f"frames must be ≥ 1, got {frames}")
+    if not fps > 0:
+        raise InputError(f"fps must be > 0, got {fps}")
+    built = [build_particles(cloud, scene, fill=fill) for cloud, scene in models]
+    solver = BatchedSolver([(p, sc) for (p, _), (_, sc) in zip(built, models)], device)
+    t = np.arange(frames, dtype=np.float64) / fps
+    ns = [len(cloud) for cloud, _ in models]
+    x0_in = [cloud.means.astype(np.float32) for cloud, _ in models]
+    x0_world = [p.x[:n].astype(np.float64) for (p, _), n in zip(built, ns)]
+    xs = [np.empty((frames, n, 3), np.float32) for n in ns]
+    for r in range(len(models)):
+        xs[r][0] = x0_in[r]
+    steps = range(1, frames) if quiet else progress(range(1, frames), desc=f"simulate ×{len(models)}",
+                                                    total=frames - 1, unit="frame")
+    for i in steps:
+        solver.step_frame(1.0 / fps)
+        x_all = solver.positions()
+        for r, ((_, tf), alive) in enumerate(zip(built, solver.alive)):
+            if alive:
+                a = int(solver.offsets[r])
+                xw = x_all[a:a + ns[r]]
+                xs[r][i] = x0_in[r] + tf.displacement_to_input(xw - x0_world[r]).astype(np.float32)
+        if not solver.alive.any():
+            break
+    out: list = []
+    for r, (_, tf) in enumerate(built):
+        err = solver.errors[r]
+        if err is not None:
+            out.append(err)
+            continue
+        out.append(Trajectory(t=t, x=xs[r], transform=tf, dt_s=float(solver.dt(r)),
+                              substeps_per_frame=int(solver.substeps_last_frame[r]),
+                              filled=len(built[r][0]) - ns[r]))
+    return out
+
+
+__all__ = ["BatchedSolver", "batch_key", "simulate_batch"]
