@@ -10,8 +10,11 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p = sub.add_parser(
         "train", parents=parents, help="train the material network on a generated dataset",
         description="Train the feature-grid 3D U-Net on DATA_DIR/train (validated on DATA_DIR/val each epoch). "
-        "The best weights by validation score go to CKPT; CKPT.state.pt holds what --resume needs.",
-        epilog="example: pixie train data/ --out model.pt --epochs 40 --device cuda --time-budget-s 300",
+        "The best weights by validation score go to CKPT; CKPT.state.pt holds what --resume needs. "
+        "Started by torchrun, it trains data-parallel: each batch is split over the processes (one GPU each, "
+        "or gloo on the CPU) and rank 0 writes the checkpoint and the log.",
+        epilog="examples: pixie train data/ --out model.pt --epochs 40 --device cuda --time-budget-s 300;  "
+        "torchrun --standalone --nproc_per_node 2 -m pixie_gs.cli.main train data/ --out model.pt --device cuda",
     )
     p.add_argument("data_dir", metavar="DATA_DIR", help="dataset made by `pixie generate` (train/ and val/ splits)")
     p.add_argument("--out", required=True, metavar="CKPT", help="checkpoint file to write (.pt)")
@@ -20,7 +23,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--time-budget-s", type=float, default=None, help="stop (and anneal the LR) within this wall time")
     p.add_argument("--resume", action="store_true", help="continue from CKPT.state.pt")
     p.add_argument("--init", default=None, metavar="CKPT0", help="start from this checkpoint's weights (fine-tuning)")
-    p.add_argument("--batch-size", type=int, default=8, help="objects per optimiser step (default 8)")
+    p.add_argument("--batch-size", type=int, default=8, help="objects per optimiser step, over all processes (default 8)")
     p.add_argument("--lr", type=float, default=2e-3, help="Adam learning rate (default 2e-3)")
     p.add_argument("--seed", type=int, default=0, help="seed for initialisation, shuffling and augmentation")
     p.add_argument("--inputs", choices=["full", "rgb", "occupancy"], default="full",
@@ -41,7 +44,9 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
 def run(args: argparse.Namespace) -> int:
     from ..devices import resolve_torch_device
     from ..errors import InputError
+    from ..model import distributed
     from ..model.train import TrainConfig, train
+    from ..progress import set_quiet
 
     try:
         mults = [int(v) for v in args.multipliers.split(",")]
@@ -58,8 +63,16 @@ def run(args: argparse.Namespace) -> int:
                       init_from=args.init,
                       model={"base_channels": args.base_channels, "multipliers": mults, "res_blocks": args.res_blocks},
                       features={"resolution": args.resolution})
-    meta = train(args.data_dir, args.out, cfg, resolve_torch_device(args.device), args.resume, args.log)
-    best = meta.get("val", {}).get("voxel", {})
-    print(f"checkpoint {args.out}: best epoch {meta.get('best_epoch')}  val accuracy {best.get('accuracy', 0):.4f}  "
-          f"val avg mse {best.get('mse_avg', 0):.4f}")
+    ctx = distributed.context_from_env()  # several processes when started by torchrun
+    device = distributed.join(ctx, resolve_torch_device(args.device))
+    if not ctx.is_main:
+        set_quiet(True)  # rank 0 alone reports
+    try:
+        meta = train(args.data_dir, args.out, cfg, device, args.resume, args.log, ctx)
+    finally:
+        distributed.leave(ctx)
+    if ctx.is_main:
+        best = meta.get("val", {}).get("voxel", {})
+        print(f"checkpoint {args.out}: best epoch {meta.get('best_epoch')}  val accuracy {best.get('accuracy', 0):.4f}  "
+              f"val avg mse {best.get('mse_avg', 0):.4f}")
     return 0

@@ -3,6 +3,9 @@
 Batches are rebuilt on the device every step from the stored Gaussians (fresh augmentation each
 time, see batch.py). The learning rate follows a warm-up + cosine schedule over whichever ends
 first, the epochs or the wall-clock budget, so a time-budgeted run still anneals properly.
+Under `torchrun --nproc_per_node N` the same loop runs data-parallel (distributed.py): each global
+batch of `batch_size` objects is split over the N processes, and the optimisation stays the one of
+a single process.
 """
 from __future__ import annotations
 
@@ -18,6 +21,7 @@ from ..field import INPUT_MODES
 from ..progress import progress, stage
 from .batch import AugmentConfig, build_batch
 from .checkpoint import FeatureSpec, LoadedModel, load_training_state, save_checkpoint, state_path
+from .distributed import SINGLE, DistContext, barrier, from_main, global_batch_loss, rank_share, sum_across
 from .evaluate import evaluate_store
 from .predict import grid_channel_names, object_feature_summary, select_inputs
 from .unet import MaterialUNet, ModelConfig, masked_loss
@@ -26,7 +30,7 @@ from .unet import MaterialUNet, ModelConfig, masked_loss
 @dataclass
 class TrainConfig:
     epochs: int = 30
-    batch_size: int = 8
+    batch_size: int = 8  # objects per optimiser step (split over the processes under torchrun)
     lr: float = 2e-3
     weight_decay: float = 1e-4
     warmup_steps: int = 100
@@ -79,9 +83,55 @@ def training_label_ranges(records) -> dict[str, list[float]]:
             "log10_density_kg_m3": pair(np.log10(r_lo), np.log10(r_hi))}
 
 
+def batch_loss(model, store, ids: list[int], spec: FeatureSpec, aug: AugmentConfig | None, gen, names: list[str],
+               inputs: list[str], class_weight: float, use_amp: bool, ctx: DistContext = SINGLE):
+    """Build this rank's share of global batch `ids` and run the model: returns (loss to back-propagate,
+    the loss value of the whole global batch, its parts, this rank's Batch)."""
+    import torch
+
+    share, counts = rank_share(ids, ctx)
+    batch = build_batch(store, share, spec, aug, gen)
+    x = select_inputs(batch.inputs, names, inputs)
+    with torch.autocast("cuda", dtype=torch.bfloat16, enabled=use_amp):
+        logits, physical = model(x)
+    loss, parts = masked_loss(logits, physical, batch.target_class, batch.target_physical, batch.occupied,
+                              class_weight)
+    if not ctx.enabled:
+        return loss, float(loss.detach()), parts, batch
+    loss, value, parts = global_batch_loss(loss, parts, int(batch.occupied.sum()), counts, class_weight, ctx,
+                                           store.device)
+    return loss, value, parts, batch
+
+
+def validation_loss(model, store, spec: FeatureSpec, names: list[str], inputs: list[str], class_weight: float,
+                    use_amp: bool, ctx: DistContext = SINGLE, batch_size: int = 4) -> float:
+    """The training loss (no augmentation) averaged over every occupied voxel of the val split; each
+    rank computes its share of the objects, the sums are added over the ranks."""
+    import torch
+
+    ids = list(range(len(store)))[ctx.rank::ctx.world_size]
+    chunks = [ids[i:i + batch_size] for i in range(0, len(ids), batch_size)]
+    total, voxels = 0.0, 0
+    with torch.no_grad():
+        for chunk in progress(chunks, "val loss", total=len(chunks), unit="batch"):
+            batch = build_batch(store, chunk, spec)
+            with torch.autocast("cuda", dtype=torch.bfloat16, enabled=use_amp):
+                logits, physical = model(select_inputs(batch.inputs, names, inputs))
+            loss, _ = masked_loss(logits, physical, batch.target_class, batch.target_physical, batch.occupied,
+                                  class_weight)
+            count = int(batch.occupied.sum())
+            total += float(loss) * count
+            voxels += count
+    total, voxels = sum_across([total, voxels], ctx, store.device)
+    return total / max(voxels, 1.0)
+
+
 def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str = "cpu", resume: bool = False,
-          log_path: str | Path | None = None) -> dict:
-    """Train on `data_dir`'s train split, validate on val, keep the best weights at `out`; returns the meta."""
+          log_path: str | Path | None = None, dist: DistContext = SINGLE) -> dict:
+    """Train on `data_dir`'s train split, validate on val, keep the best weights at `out`; returns the meta.
+
+    With `dist` of several processes (their group joined, `device` this rank's), the batches are split
+    over the ranks; rank 0 alone validates and writes `out`, its state file and the log."""
     import torch
 
     from .data import DeviceStore, load_split
@@ -109,38 +159,48 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
     names = grid_channel_names(extra)
     inputs = list(INPUT_MODES[cfg.input_mode] or names)
     mcfg = ModelConfig(input_channels=inputs, **cfg.model)
-    model = MaterialUNet(mcfg).to(device)
+    net = MaterialUNet(mcfg).to(device)
     if cfg.init_from and not state:
         from .checkpoint import load_checkpoint
 
         init = load_checkpoint(cfg.init_from, "cpu")
         if init.config.to_dict() != mcfg.to_dict():
             raise InputError("--init checkpoint has a different network configuration", cfg.init_from)
-        model.load_state_dict(init.model.state_dict())
+        net.load_state_dict(init.model.state_dict())
         stage(f"starting from the weights of {cfg.init_from}")
-    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     history: list[dict] = []
     start_epoch, step, elapsed_before, best = 0, 0, 0.0, -math.inf
     if state:
-        model.load_state_dict(state["model"])
+        net.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         start_epoch, step = int(state["epoch"]), int(state["step"])
         elapsed_before, best = float(state["elapsed_s"]), float(state["best_score"])
         history = json.loads(state["history_json"])
         stage(f"resuming after epoch {start_epoch} (step {step}, {elapsed_before:.0f} s trained)")
-    gen = torch.Generator().manual_seed(cfg.seed + 7919 * start_epoch)
+    gen = torch.Generator().manual_seed(cfg.seed + 7919 * start_epoch)  # shuffling: the same on every rank
+    # augmentation: one process draws from the shuffling generator (as before torchrun support); ranks draw their own
+    aug_gen = gen if not dist.enabled else torch.Generator().manual_seed(
+        cfg.seed + 7919 * start_epoch + 104729 * (dist.rank + 1))
+    model = net
+    if dist.enabled:  # after loading weights: DDP starts every rank from rank 0's
+        from torch.nn.parallel import DistributedDataParallel
+
+        model = DistributedDataParallel(net, device_ids=[torch.device(device).index] if use_cuda(device) else None)
     aug = AugmentConfig() if cfg.augment else None
     steps_per_epoch = math.ceil(len(train_store) / cfg.batch_size)
     total_steps = steps_per_epoch * cfg.epochs
-    use_amp = str(device).startswith("cuda")
+    use_amp = use_cuda(device)
     if use_amp:
         torch.backends.cudnn.benchmark = True
     meta = {"train_config": asdict(cfg), "train_objects": len(train_store), "val_objects": len(val_store),
             "data_dir": str(data_dir), "history": history, "label_ranges": ranges}
-    stage(f"training {sum(p.numel() for p in model.parameters())} parameters on {device}: "
+    where = f"{dist.world_size} processes ({device} on rank 0)" if dist.enabled else device
+    stage(f"training {sum(p.numel() for p in net.parameters())} parameters on {where}: "
           f"{len(train_store)} train / {len(val_store)} val objects, inputs={cfg.input_mode} ({len(inputs)} channels)")
     t_train = time.perf_counter()
     summaries: list = []  # per-object grid statistics of the first batches (out-of-distribution score)
+    summarised = 0
     val_seconds = 0.0
     out_of_time = False
     for epoch in range(start_epoch, cfg.epochs):
@@ -148,66 +208,80 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         order = torch.randperm(len(train_store), generator=gen).tolist()
         batches = [order[i:i + cfg.batch_size] for i in range(0, len(order), cfg.batch_size)]
         sums = {"loss": 0.0, "ce": 0.0, "mse_log_E": 0.0, "mse_nu": 0.0, "mse_log_rho": 0.0}
-        done = 0
+        done = objects = 0
+        t_epoch = time.perf_counter()
         for ids in progress(batches, f"epoch {epoch + 1}/{cfg.epochs}", total=len(batches), unit="batch"):
             elapsed = elapsed_before + time.perf_counter() - t_train
-            if cfg.time_budget_s and elapsed + 1.2 * val_seconds >= cfg.time_budget_s:
-                out_of_time = True
-                break
+            if cfg.time_budget_s:
+                stop = elapsed + 1.2 * val_seconds >= cfg.time_budget_s
+                elapsed, stop = from_main([elapsed, stop], dist, device)  # rank 0's clock decides for all
+                if stop:
+                    out_of_time = True
+                    break
             for g in opt.param_groups:
                 g["lr"] = learning_rate(cfg, step, total_steps, elapsed)
-            batch = build_batch(train_store, ids, spec, aug, gen)
-            if len(summaries) * cfg.batch_size < FEATURE_STATS_OBJECTS:
+            loss, value, parts, batch = batch_loss(model, train_store, ids, spec, aug, aug_gen, names, inputs,
+                                                   cfg.class_weight, use_amp, dist)
+            if summarised < FEATURE_STATS_OBJECTS:
                 summaries.append(object_feature_summary(batch.inputs, batch.occupied).float().cpu())
-            x = select_inputs(batch.inputs, names, inputs)
-            with torch.autocast("cuda", dtype=torch.bfloat16, enabled=use_amp):
-                logits, physical = model(x)
-            loss, parts = masked_loss(logits, physical, batch.target_class, batch.target_physical, batch.occupied,
-                                      cfg.class_weight)
+                summarised += cfg.batch_size if not dist.enabled else len(batch.means_unit)
             opt.zero_grad(set_to_none=True)
             loss.backward()
-            torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+            torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
             opt.step()
             step += 1
             done += 1
-            sums["loss"] += float(loss.detach())
+            objects += len(ids)
+            sums["loss"] += value
             for k, v in parts.items():
                 sums[k] += v
         if done == 0:
             break
+        train_seconds = time.perf_counter() - t_epoch
         if summaries and "feature_stats" not in meta:
             f = torch.cat(summaries).double()
             meta["feature_stats"] = {"channels": names + ["log10_occupied_share"], "objects": int(len(f)),
                                      "mean": [round(float(v), 6) for v in f.mean(0)],
                                      "std": [round(float(v), 6) for v in f.std(0)]}
         tv = time.perf_counter()
-        model.eval()
-        summary = evaluate_store(LoadedModel(model, mcfg, spec, {}, ""), val_store, per_gaussian=False,
-                                 desc="validate")
-        val_seconds = time.perf_counter() - tv
-        elapsed = elapsed_before + time.perf_counter() - t_train
-        row = {"epoch": epoch + 1, "steps": step, "elapsed_s": round(elapsed, 1),
-               **{f"train_{k}": round(v / done, 5) for k, v in sums.items()},
-               "val_accuracy": round(summary["voxel"]["accuracy"], 5), "val_mse_avg": round(summary["voxel"]["mse_avg"], 5),
-               **{f"val_mse_{k}": round(summary["voxel"][f"mse_{k}"], 5) for k in ("log_E", "nu", "log_rho")}}
-        history.append(row)
-        stage(f"epoch {epoch + 1}: loss {row['train_loss']:.4f}  val acc {row['val_accuracy']:.4f}  "
-              f"val mse {row['val_mse_avg']:.4f}  ({elapsed:.0f} s)")
-        meta["history"] = history
-        if val_score(summary) > best:
-            best = val_score(summary)
-            meta.update(best_epoch=epoch + 1, val=summary)
-            save_checkpoint(out, model, spec, meta)
-        with atomic_path(side, suffix=".tmp") as tmp:
-            torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(), "epoch": epoch + 1, "step": step,
-                        "elapsed_s": elapsed, "best_score": best, "history_json": json.dumps(history),
-                        "extra_names": list(extra)}, tmp)
-        if log_path:
-            with atomic_path(log_path, suffix=".tmp") as tmp:
-                Path(tmp).write_text(json.dumps({"meta": meta, "wall_s": time.perf_counter() - t0}, indent=1))
+        net.eval()
+        val_loss = validation_loss(net, val_store, spec, names, inputs, cfg.class_weight, use_amp, dist)
+        if dist.is_main:  # rank 0 alone validates and writes; the others go on to the next epoch
+            summary = evaluate_store(LoadedModel(net, mcfg, spec, {}, ""), val_store, per_gaussian=False,
+                                     desc="validate")
+            val_seconds = time.perf_counter() - tv
+            elapsed = elapsed_before + time.perf_counter() - t_train
+            row = {"epoch": epoch + 1, "steps": step, "elapsed_s": round(elapsed, 1),
+                   "train_s": round(train_seconds, 2), "train_objects_per_s": round(objects / train_seconds, 2),
+                   "processes": dist.world_size,
+                   **{f"train_{k}": round(v / done, 5) for k, v in sums.items()}, "val_loss": round(val_loss, 5),
+                   "val_accuracy": round(summary["voxel"]["accuracy"], 5),
+                   "val_mse_avg": round(summary["voxel"]["mse_avg"], 5),
+                   **{f"val_mse_{k}": round(summary["voxel"][f"mse_{k}"], 5) for k in ("log_E", "nu", "log_rho")}}
+            history.append(row)
+            stage(f"epoch {epoch + 1}: loss {row['train_loss']:.4f}  val loss {val_loss:.4f}  "
+                  f"val acc {row['val_accuracy']:.4f}  val mse {row['val_mse_avg']:.4f}  "
+                  f"({objects / train_seconds:.1f} objects/s, {elapsed:.0f} s)")
+            meta["history"] = history
+            if val_score(summary) > best:
+                best = val_score(summary)
+                meta.update(best_epoch=epoch + 1, val=summary)
+                save_checkpoint(out, net, spec, meta)
+            with atomic_path(side, suffix=".tmp") as tmp:
+                torch.save({"model": net.state_dict(), "optimizer": opt.state_dict(), "epoch": epoch + 1, "step": step,
+                            "elapsed_s": elapsed, "best_score": best, "history_json": json.dumps(history),
+                            "extra_names": list(extra)}, tmp)
+            if log_path:
+                with atomic_path(log_path, suffix=".tmp") as tmp:
+                    Path(tmp).write_text(json.dumps({"meta": meta, "wall_s": time.perf_counter() - t0}, indent=1))
         if out_of_time:
             stage(f"time budget of {cfg.time_budget_s:.0f} s reached")
             break
+    barrier(dist)  # rank 0 has written everything before any rank returns
     if not out.exists():
         raise InputError("training stopped before a single epoch finished (raise --time-budget-s)", out)
     return meta
+
+
+def use_cuda(device: str) -> bool:
+    return str(device).startswith("cuda")
