@@ -19,16 +19,21 @@ Why so few runs: one simulation costs seconds on a 2-core CPU, so every candidat
      already made; several parameters (wind) — chord Gauss–Newton with the screening J and
      back-tracking. Each candidate is capped at `max_evals` runs in total.
 Every score uses simulated (never predicted) residuals.
+Batching: each stage asks for all its runs at once — every candidate's screening probes, every
+verification, one step of each refined candidate (the searches run in lock-step, each one's
+sequence of points unchanged) — through `Problem.evaluate_many`, which the forward model
+simulates as one batched launch on a GPU (forward.py).
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Generator
 
 import numpy as np
 
 from ..errors import ComputationError
+from ..progress import progress
 from .effects import Effect, EffectContext, Param
 from .locate import residuals, sum_squares
 
@@ -108,19 +113,41 @@ class Problem:
         return r[self.visible].reshape(-1)
 
     def evaluate(self, cand: Candidate, values: dict[str, float], keep_pred: bool = True) -> Evaluation:
-        scene, cloud = cand.effect.apply(self.scene, self.cloud, cand.part, values)
-        cand.base_sse = self.base_sse
-        if self.on_run is not None:
-            self.on_run(cand.label)
-        try:
-            pred = self.model.predict(scene, cloud)
-        except ComputationError:
-            ev = Evaluation(dict(values), float("inf"), None)  # diverged: infinitely bad
+        return self.evaluate_many([(cand, values)], keep_pred)[0]
+
+    def evaluate_many(self, requests: list[tuple[Candidate, dict[str, float]]],
+                      keep_pred: bool = True, desc: str | None = None) -> list[Evaluation]:
+        """Simulate every (candidate, values) request (one batch when the model batches) and
+        append each Evaluation to its candidate, in request order; `desc`: progress bar title
+        when the runs go one after the other."""
+        variants = []
+        for cand, values in requests:
+            variants.append(cand.effect.apply(self.scene, self.cloud, cand.part, values))
+            cand.base_sse = self.base_sse
+            if self.on_run is not None:
+                self.on_run(cand.label)
+        if getattr(self.model, "batch", False):
+            preds = self.model.predict_many(variants)
         else:
-            sse = sum_squares(residuals(self.measured_x, pred, self.visible))
-            ev = Evaluation(dict(values), sse if np.isfinite(sse) else float("inf"), pred if keep_pred else None)
-        cand.evaluations.append(ev)
-        return ev
+            preds = [self._predict_one(scene, cloud) for scene, cloud in
+                     (progress(variants, desc=desc, total=len(variants), unit="run") if desc else variants)]
+        out = []
+        for (cand, values), pred in zip(requests, preds):
+            if isinstance(pred, ComputationError):
+                ev = Evaluation(dict(values), float("inf"), None)  # diverged: infinitely bad
+            else:
+                sse = sum_squares(residuals(self.measured_x, pred, self.visible))
+                ev = Evaluation(dict(values), sse if np.isfinite(sse) else float("inf"), pred if keep_pred else None)
+            cand.evaluations.append(ev)
+            out.append(ev)
+        return out
+
+    def _predict_one(self, scene, cloud):
+        """The model's prediction, or the ComputationError of a run that diverged."""
+        try:
+            return self.model.predict(scene, cloud)
+        except ComputationError as err:
+            return err
 
 
 def make_candidates(effects: list[Effect], scene, cloud, parts: list[int]) -> list[Candidate]:
@@ -136,22 +163,33 @@ def make_candidates(effects: list[Effect], scene, cloud, parts: list[int]) -> li
 
 
 # ---------------------------------------------------------------------------------- screening
-def screen(problem: Problem, cand: Candidate) -> None:
-    """Probe runs → sensitivity J and the linear-least-squares predicted values and residual."""
+def screen_requests(cand: Candidate) -> list[dict[str, float]]:
+    """The screening runs of a candidate: per parameter its probe, then its extra probes (the
+    others at their vanishing value); one plain run for an effect without parameters."""
     if not cand.params:
-        problem.evaluate(cand, {})
+        return [{}]
+    base = cand.off_values()
+    out = []
+    for p in cand.params:
+        for value in (p.probe,) + tuple(p.extra_probes):
+            values = dict(base)
+            values[p.name] = value
+            out.append(values)
+    return out
+
+
+def screen_finish(problem: Problem, cand: Candidate, evals: list[Evaluation]) -> None:
+    """Sensitivity J and the linear-least-squares prediction from the screening runs `evals`
+    (in screen_requests order)."""
+    if not cand.params:
         return
     base = cand.off_values()
     flat_base = problem.flat(problem.base_pred)
     columns = []
+    i = 0
     for p in cand.params:
-        values = dict(base)
-        values[p.name] = p.probe
-        ev = problem.evaluate(cand, values)
-        for extra in p.extra_probes:  # strongly non-linear effects: a coarse scan as well
-            more = dict(base)
-            more[p.name] = extra
-            problem.evaluate(cand, more)
+        ev = evals[i]
+        i += 1 + len(p.extra_probes)
         if p.off is None or ev.pred is None:
             continue
         step = linear_coord(p, p.probe) - linear_coord(p, p.off)
@@ -159,6 +197,23 @@ def screen(problem: Problem, cand: Candidate) -> None:
     if len(columns) == len(cand.params) and all(p.off is not None for p in cand.params):
         cand.jacobian = np.stack(columns, axis=1)
         predict_linear(problem, cand, problem.flat(problem.r0), base)
+
+
+def screen(problem: Problem, cand: Candidate) -> None:
+    """Probe runs → sensitivity J and the linear-least-squares predicted values and residual."""
+    screen_all(problem, [cand])
+
+
+def screen_all(problem: Problem, cands: list[Candidate],
+               extra: list[tuple[Candidate, dict[str, float]]] = (), desc: str | None = None) -> None:
+    """screen() every candidate, their probe runs (and the `extra` runs) asked for at once."""
+    requests = [(c, values) for c in cands for values in screen_requests(c)]
+    evals = problem.evaluate_many(requests + list(extra), desc=desc)
+    i = 0
+    for c in cands:
+        k = len(screen_requests(c))
+        screen_finish(problem, c, evals[i:i + k])
+        i += k
 
 
 def predict_linear(problem: Problem, cand: Candidate, r_flat: np.ndarray, start: dict[str, float]) -> None:
@@ -181,29 +236,75 @@ def predict_linear(problem: Problem, cand: Candidate, r_flat: np.ndarray, start:
     cand.predicted_sse = float(np.sum(np.square(r_flat - J @ delta)))
 
 
-def verify(problem: Problem, cand: Candidate) -> None:
-    """Simulate the linear prediction (when it is not a run already made)."""
+def verify_request(cand: Candidate) -> dict[str, float] | None:
+    """The linear prediction to simulate, None when there is none or it was run already."""
     if cand.linear_values is None:
-        return
+        return None
     for ev in cand.evaluations:
         if all(abs(ev.values[k] - v) <= 1e-9 * max(1.0, abs(v)) for k, v in cand.linear_values.items()):
-            return
-    problem.evaluate(cand, cand.linear_values)
+            return None
+    return cand.linear_values
+
+
+def verify(problem: Problem, cand: Candidate) -> None:
+    """Simulate the linear prediction (when it is not a run already made)."""
+    verify_all(problem, [cand])
+
+
+def verify_all(problem: Problem, cands: list[Candidate], desc: str | None = None) -> None:
+    """verify() every candidate, the runs asked for at once."""
+    requests = [(c, v) for c in cands for v in [verify_request(c)] if v is not None]
+    if requests:
+        problem.evaluate_many(requests, desc=desc)
 
 
 # ---------------------------------------------------------------------------------- refinement
+Search = Generator[dict, Evaluation, None]  # yields parameter values, is sent their Evaluation
+
+
 def refine(problem: Problem, cand: Candidate, max_evals: int) -> None:
     """Improve the candidate's best fit until it has used `max_evals` runs in total."""
+    refine_all(problem, [cand], max_evals)
+
+
+def refine_search(problem: Problem, cand: Candidate, max_evals: int) -> Search:
+    """The refinement of one candidate as a generator of runs (see refine_all)."""
     budget = max_evals - cand.runs
     if budget <= 0 or not cand.params:
         return
     if len(cand.params) == 1:
-        _refine_scalar(problem, cand, budget)
+        yield from _refine_scalar(problem, cand, budget)
     elif cand.jacobian is not None:
-        _refine_gauss_newton(problem, cand, budget)
+        yield from _refine_gauss_newton(problem, cand, budget)
 
 
-def _refine_scalar(problem: Problem, cand: Candidate, budget: int) -> None:
+def refine_all(problem: Problem, cands: list[Candidate], max_evals: int, desc: str | None = None) -> None:
+    """refine() the candidates in lock-step: each step simulates the next point of every search
+    still going, at once. Each search sees only its own runs, so it makes the same choices as
+    when run alone. `desc`: title of a progress bar over the steps."""
+    searches: list[tuple[Candidate, Search, dict]] = []
+    for cand in cands:
+        search = refine_search(problem, cand, max_evals)
+        values = next(search, None)
+        if values is not None:
+            searches.append((cand, search, values))
+
+    def steps():
+        while searches:
+            yield
+
+    for _ in (progress(steps(), desc=desc, unit="step") if desc else steps()):
+        evals = problem.evaluate_many([(c, v) for c, _, v in searches])
+        going = []
+        for (cand, search, _), ev in zip(searches, evals):
+            try:
+                going.append((cand, search, search.send(ev)))
+            except StopIteration:
+                pass
+        searches[:] = going
+
+
+def _refine_scalar(problem: Problem, cand: Candidate, budget: int) -> Search:
     p = cand.params[0]
     a, b = p.search_bounds
     tol = 0.02 if p.log else 0.01 * (p.hi - p.lo)
@@ -213,14 +314,12 @@ def _refine_scalar(problem: Problem, cand: Candidate, budget: int) -> None:
     if p.off is not None and (p.lo <= p.off <= p.hi) and not (p.log and p.off <= 0):
         pts.setdefault(round(p.to_search(p.off), 9), problem.base_sse)
 
-    def run(u: float) -> None:
-        pts[round(u, 9)] = problem.evaluate(cand, {p.name: p.from_search(u)}).sse
-
     for _ in range(budget):
         u_new = _next_point(pts, a, b, tol)
         if u_new is None:
             return
-        run(u_new)
+        ev = yield {p.name: p.from_search(u_new)}
+        pts[round(u_new, 9)] = ev.sse
 
 
 def _next_point(pts: dict[float, float], a: float, b: float, tol: float) -> float | None:
@@ -262,7 +361,7 @@ def _next_point(pts: dict[float, float], a: float, b: float, tol: float) -> floa
     return cand
 
 
-def _refine_gauss_newton(problem: Problem, cand: Candidate, budget: int) -> None:
+def _refine_gauss_newton(problem: Problem, cand: Candidate, budget: int) -> Search:
     """Chord Gauss–Newton with the screening J, halving the step when a run gets worse."""
     for _ in range(budget):
         best = cand.best
@@ -281,7 +380,7 @@ def _refine_gauss_newton(problem: Problem, cand: Candidate, budget: int) -> None
             if max(abs(linear_coord(p, trial[p.name]) - linear_coord(p, best.values[p.name]))
                    for p in cand.params) < 1e-3:
                 return
-            ev = problem.evaluate(cand, trial)
+            ev = yield trial
             budget -= 1
             if ev.sse < best.sse:
                 break

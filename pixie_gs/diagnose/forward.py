@@ -4,6 +4,11 @@ Each evaluation runs the Warp MPM (`pixie_gs.sim.run.simulate`) and returns the 
 positions of the measured points (their Gaussians `ids`) at the measured times `t`, linearly
 interpolated between simulated frames, in the splat's coordinates.
 
+Batching: `predict_many` simulates several variants at once; on a GPU (or when asked) the
+variants that share a grid go out as ONE batched simulation (sim/batch.py: one launch per kernel
+and substep for all of them — each run is launch-bound alone), otherwise one after the other.
+Batched and separate runs take the same substeps with the same arithmetic (tests/test_sim_batched.py).
+
 CPU cost is the constraint, so large models are fitted on a REDUCED model — a random subset of
 the Gaussians (always keeping the tracked ones) on a coarser grid — with a delta correction:
   prediction(θ) = full(θ₀) + [reduced(θ) − reduced(θ₀)]
@@ -22,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import ComputationError, InputError
 from ..progress import is_quiet, set_quiet
 from ..splat import SplatCloud
 from .measured import MeasuredTracks
@@ -47,6 +52,10 @@ def sim_schedule(t: np.ndarray) -> tuple[int, float]:
     return max(frames, 2), fps
 
 
+MAX_BATCH_RUNS = 64  # variants per batched simulation
+MAX_BATCH_PARTICLES = 4_000_000  # particles per batched simulation (device memory ~ 200 B each)
+
+
 def sample_at(xs: np.ndarray, fps: float, t: np.ndarray) -> np.ndarray:
     """Positions (T,M,3) at times `t` from frames `xs` (F,M,3) at t_i = i/fps (linear in time)."""
     u = np.clip(np.asarray(t) * fps, 0.0, len(xs) - 1.0)
@@ -60,12 +69,22 @@ class ForwardModel:
     """Simulates model variants and returns the tracked points, counting runs and seconds."""
 
     def __init__(self, cloud: SplatCloud, tracks: MeasuredTracks, device: str = "auto",
-                 fill: bool = False, fidelity: Fidelity | None = None, cache: dict | None = None) -> None:
+                 fill: bool = False, fidelity: Fidelity | None = None, cache: dict | None = None,
+                 batch: bool | None = None) -> None:
         """`cache` (optional, may be shared between diagnoses of the same model and tracked
-        points) memoises simulated tracks by model variant, so repeated runs are free."""
+        points) memoises simulated tracks by model variant, so repeated runs are free.
+        `batch`: simulate the variants of one predict_many call as one batched simulation
+        (None: on a GPU only — on the CPU, where Warp runs threads one after another, batching
+        saves no kernel time)."""
         self.cloud = cloud
         self.tracks = tracks
         self.device = device
+        if batch is None:
+            from ..devices import resolve_warp_device
+
+            batch = resolve_warp_device(device) != "cpu"
+        self.batch = bool(batch)
+        self.batches = 0  # batched simulations made (each counts its variants in `runs`)
         self.fill = fill
         self.frames, self.fps = sim_schedule(tracks.t)
         self.fidelity = fidelity or Fidelity()
@@ -99,13 +118,68 @@ class ForwardModel:
         self.cache[self._key(cloud, scene)] = np.asarray(prediction, np.float64)
 
     def _run(self, cloud: SplatCloud, scene, ids: np.ndarray) -> np.ndarray:
-        key = self._key(cloud, scene)
-        if key in self.cache:
-            self.cache_hits += 1
-            return self.cache[key]
-        result = self._simulate(cloud, scene, ids)
-        self.cache[key] = result
+        result = self._run_many([(cloud, scene)], ids)[0]
+        if isinstance(result, Exception):
+            raise result
         return result
+
+    def _run_many(self, variants: list[tuple[SplatCloud, object]], ids: np.ndarray) -> list:
+        """Tracked points (T,M,3) per (cloud, scene), or the ComputationError of a diverged run
+        (not cached); cached variants are not simulated again, duplicates only once."""
+        keys = [self._key(cloud, scene) for cloud, scene in variants]
+        todo: dict[tuple, tuple[SplatCloud, object]] = {}
+        for key, variant in zip(keys, variants):
+            if key in self.cache:
+                self.cache_hits += 1
+            elif key not in todo:
+                todo[key] = variant
+        results: dict[tuple, object] = {}
+        if self.batch and len(todo) > 1:
+            results.update(self._simulate_batched(todo, ids))
+        else:
+            for key, (cloud, scene) in todo.items():
+                try:
+                    results[key] = self._simulate(cloud, scene, ids)
+                except ComputationError as err:
+                    results[key] = err
+        for key, value in results.items():
+            if not isinstance(value, Exception):
+                self.cache[key] = value
+        return [self.cache.get(key, results.get(key)) for key in keys]
+
+    def _simulate_batched(self, todo: dict, ids: np.ndarray) -> dict:
+        """Simulate the variants in `todo` in batches of runs sharing a grid (sim/batch.py)."""
+        from ..sim.batch import batch_key, simulate_batch
+
+        groups: dict[tuple, list[tuple]] = {}
+        for key, (cloud, scene) in todo.items():
+            groups.setdefault(batch_key(scene), []).append(key)
+        out: dict = {}
+        for keys in groups.values():
+            chunk: list[tuple] = []
+            size = 0
+            for key in keys + [None]:
+                n = 0 if key is None else len(todo[key][0])
+                if chunk and (key is None or len(chunk) >= MAX_BATCH_RUNS or size + n > MAX_BATCH_PARTICLES):
+                    start = time.perf_counter()
+                    quiet = is_quiet()
+                    set_quiet(True)
+                    try:
+                        trajs = simulate_batch([todo[k] for k in chunk], self.frames, self.fps, device=self.device,
+                                               fill=self.fill)
+                    finally:
+                        set_quiet(quiet)
+                        self.runs += len(chunk)
+                        self.batches += 1
+                        self.seconds += time.perf_counter() - start
+                    for k, traj in zip(chunk, trajs):
+                        out[k] = traj if isinstance(traj, Exception) else \
+                            sample_at(traj.x[:, ids].astype(np.float64), self.fps, self.tracks.t)
+                    chunk, size = [], 0
+                if key is not None:
+                    chunk.append(key)
+                    size += n
+        return out
 
     def _simulate(self, cloud: SplatCloud, scene, ids: np.ndarray) -> np.ndarray:
         from ..sim.run import simulate
@@ -125,21 +199,31 @@ class ForwardModel:
         """Tracked points (T,M,3) of the full model `cloud` (default: the input) in `scene`."""
         return self._run(cloud if cloud is not None else self.cloud, scene, self.tracks.ids)
 
-    def _simulate_reduced(self, scene, cloud: SplatCloud) -> np.ndarray:
+    def _coarse(self, scene):
+        coarse = copy.deepcopy(scene)
+        coarse.domain.grid = min(scene.domain.grid,
+                                 max(self.fidelity.min_grid, int(round(scene.domain.grid * self.grid_scale))))
+        return coarse
+
+    def _simulate_reduced_many(self, variants: list[tuple[object, SplatCloud]]) -> list:
         assert self.keep is not None and self.reduced_ids is not None
-        sub = cloud.subset(self.keep)
+        subs = [cloud.subset(self.keep) for _, cloud in variants]
         if self.grid_scale < 1.0:
-            coarse = copy.deepcopy(scene)
-            coarse.domain.grid = min(scene.domain.grid,
-                                     max(self.fidelity.min_grid, int(round(scene.domain.grid * self.grid_scale))))
             try:
-                return self._run(sub, coarse, self.reduced_ids)
+                return self._run_many([(sub, self._coarse(scene)) for sub, (scene, _) in zip(subs, variants)],
+                                      self.reduced_ids)
             except InputError:
                 # the coarse grid's wider boundary band may not fit the object: keep the scene's grid
                 self.grid_scale = 1.0
                 if self._reduced_base is not None:
                     raise RuntimeError("reduced grid changed after the baseline was set") from None
-        return self._run(sub, scene, self.reduced_ids)
+        return self._run_many([(sub, scene) for sub, (scene, _) in zip(subs, variants)], self.reduced_ids)
+
+    def _simulate_reduced(self, scene, cloud: SplatCloud) -> np.ndarray:
+        result = self._simulate_reduced_many([(scene, cloud)])[0]
+        if isinstance(result, Exception):
+            raise result
+        return result
 
     def set_baseline(self, scene, cloud: SplatCloud | None = None,
                      full_prediction: np.ndarray | None = None) -> np.ndarray:
@@ -153,12 +237,21 @@ class ForwardModel:
 
     def predict(self, scene, cloud: SplatCloud | None = None) -> np.ndarray:
         """Predicted tracked points (T,M,3) of a model variant (delta-corrected when reduced)."""
-        cloud = cloud if cloud is not None else self.cloud
+        result = self.predict_many([(scene, cloud)])[0]
+        if isinstance(result, Exception):
+            raise result
+        return result
+
+    def predict_many(self, variants: list[tuple[object, SplatCloud | None]]) -> list:
+        """predict() for several (scene, cloud) variants at once (batched when `batch`): per
+        variant the tracked points (T,M,3), or the ComputationError of a run that diverged."""
+        variants = [(scene, cloud if cloud is not None else self.cloud) for scene, cloud in variants]
         if not self.is_reduced:
-            return self.simulate_full(scene, cloud)
+            return self._run_many([(cloud, scene) for scene, cloud in variants], self.tracks.ids)
         if self._full_base is None or self._reduced_base is None:
             raise RuntimeError("call set_baseline() before predict()")
-        return self._full_base + (self._simulate_reduced(scene, cloud) - self._reduced_base)
+        return [r if isinstance(r, Exception) else self._full_base + (r - self._reduced_base)
+                for r in self._simulate_reduced_many(variants)]
 
 
 def reduced_subset(n: int, ids: np.ndarray, fidelity: Fidelity) -> tuple[np.ndarray, np.ndarray]:

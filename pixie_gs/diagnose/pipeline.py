@@ -15,10 +15,10 @@ import numpy as np
 
 from ..errors import InputError
 from ..materials import STATIONARY
-from ..progress import progress, stage
+from ..progress import stage
 from ..splat import SplatCloud
 from .effects import Effect, get_effect, registry
-from .fit import Candidate, Problem, drop_predictions, make_candidates, predict_linear, refine, screen, verify
+from .fit import Candidate, Problem, drop_predictions, make_candidates, predict_linear, refine_all, screen_all, verify_all
 from .forward import Fidelity, ForwardModel
 from .locate import Location, locate, residuals, rms_gap, spatial_clusters
 from .ambiguity import ambiguous_with
@@ -52,6 +52,7 @@ class DiagnoseOptions:
     checks: bool = True                   # units, registration, start-time offset, outlier tracks (checks.py)
     units: str | None = None              # unit of the measured coordinates (mm|cm|m; None: the splat's)
     solver_floor: bool = True             # estimate the solver-error floor (floor.py) and use it in the score
+    batch: bool | None = None             # candidate runs as one batched simulation (None: on a GPU only)
 
 
 @dataclass
@@ -190,11 +191,11 @@ class _Runner:
         stage(f"round {index}: RMS gap {loc.rms:.4g} (noise σ ≈ {self.sigma:.2g} per axis); "
               f"worst part {parts[0] if parts else '-'}; {len(cands)} candidates")
         if previous is None:
-            for cand in progress(cands, desc=f"screen (round {index})", total=len(cands), unit="cand"):
-                screen(problem, cand)
+            screen_all(problem, cands, desc=f"screen (round {index})")
         else:
             old = {(c.effect.name, c.part): c for c in previous}
             r_flat = problem.flat(problem.r0)
+            to_screen, reruns = [], []
             for cand in cands:
                 prior = old.get((cand.effect.name, cand.part))
                 if prior is not None and prior.jacobian is not None:
@@ -204,17 +205,18 @@ class _Runner:
                         and prior.best.sse < prior.base_sse:
                     # no sensitivity (threshold / switch effects) but it helped before: one run
                     # at its earlier best on top of the new model
-                    problem.evaluate(cand, prior.best.values)
+                    reruns.append((cand, prior.best.values))
                 elif prior is None:
-                    screen(problem, cand)  # a part that was not among the worst before
+                    to_screen.append(cand)  # a part that was not among the worst before
+            if to_screen or reruns:
+                screen_all(problem, to_screen, extra=reruns, desc=f"screen (round {index})")
 
         def estimate(c: Candidate) -> float:
             vals = [e.sse for e in c.evaluations] + ([c.predicted_sse] if c.predicted_sse is not None else [])
             return min(vals) if vals else float("inf")
 
         cands.sort(key=estimate)
-        for cand in progress(cands[: opts.verify_top], desc=f"verify (round {index})", unit="cand"):
-            verify(problem, cand)
+        verify_all(problem, cands[: opts.verify_top], desc=f"verify (round {index})")
         cands.sort(key=lambda c: c.best.sse if c.best else float("inf"))
         # the top `refine_top`, plus runner-ups whose verified fit is within REFINE_WITHIN × the best
         # SSE (up to `refine_max`): an ambiguity verdict needs every close rival fitted as well
@@ -226,8 +228,7 @@ class _Runner:
                      and score_candidate(c.effect.name, c.part, {}, len(c.params), c.best.sse, problem.base_sse,
                                          n, self.sigma).delta_bic > 0
                      and self.excess_share(problem, c.best.sse, n) >= opts.min_refine_explained]
-        for cand in progress(promising, desc=f"refine (round {index})", unit="cand"):
-            refine(problem, cand, opts.max_evals)
+        refine_all(problem, promising, opts.max_evals, desc=f"refine (round {index})")
         scored = [s for s in (self.score(problem, c, labels, n) for c in cands) if s is not None]
         ranking = rank(scored)
         chosen = ranking[0] if ranking and ranking[0].significant else None
@@ -259,7 +260,8 @@ def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "au
     primed = None
     if options.checks:
         tracks, registration, primed = prepare_tracks(tracks, work, scene, device, options)
-    model = ForwardModel(work, tracks, device=device, fill=options.fill, fidelity=options.fidelity, cache=cache)
+    model = ForwardModel(work, tracks, device=device, fill=options.fill, fidelity=options.fidelity, cache=cache,
+                         batch=options.batch)
     if primed is not None:
         model.prime(scene, work, primed)
     if model.is_reduced:
