@@ -1,11 +1,11 @@
-"""Rerun recordings of splats: RGB, material class and log-stiffness views over a time slider.
+"""Rerun recordings of splats: RGB, material class, log-stiffness and confidence views over a time slider.
 
 Used by `annotate`, `simulate`, `diagnose` and `demo`. Typical use::
 
     rec = open_recording("pixie-simulate", rrd_path="run.rrd", spawn=False)
-    log_material_views(rec, cloud, time_s=0.0)          # splat/rgb, splat/material, splat/log_E
+    log_material_views(rec, cloud, time_s=0.0)          # splat/rgb, /material, /log_E, /confidence
     for t, x in ...: log_positions(rec, MATERIAL_VIEW_ENTITIES, x, time_s=t)
-    send_layout(rec)                                    # three 3D views side by side + time panel
+    send_layout(rec)                                    # four 3D views side by side + time panel
     close_recording(rec)                                # the .rrd appears only now (atomic)
 
 `open_recording` always returns a recording; with neither `rrd_path` nor `spawn` it is a
@@ -37,7 +37,8 @@ if TYPE_CHECKING:  # rerun is a heavy import; only load it when a recording is m
 
 TIMELINE = "time"
 DEFAULT_ROOT = "splat"
-VIEW_NAMES = {"rgb": "colour (RGB)", "material": "material class", "log_E": "log10 E (Pa)"}
+VIEW_NAMES = {"rgb": "colour (RGB)", "material": "material class", "log_E": "log10 E (Pa)",
+              "confidence": "material confidence"}
 MATERIAL_VIEW_ENTITIES = tuple(f"{DEFAULT_ROOT}/{k}" for k in VIEW_NAMES)
 
 # temporary .rrd path -> final path, for recordings opened with rrd_path and not yet closed
@@ -170,6 +171,15 @@ def log_e_colors(E_pa: np.ndarray, cmap: str = "viridis") -> np.ndarray:
     return colormaps[cmap](np.clip(u, 0.0, 1.0))[:, :3].astype(np.float32)
 
 
+def confidence_colors(confidence: np.ndarray, cmap: str = "magma") -> np.ndarray:
+    """RGB in [0, 1] (N,3) for per-Gaussian confidence in [0, 1] (dark: a guess, bright: trusted);
+    the same map `pixie render --mode confidence` uses."""
+    from matplotlib import colormaps
+
+    c = np.nan_to_num(np.asarray(confidence, dtype=np.float64), nan=0.0)
+    return colormaps[cmap](np.clip(c, 0.0, 1.0))[:, :3].astype(np.float32)
+
+
 def splat_radii(cloud: "SplatCloud", scale: float = 1.0) -> np.ndarray:
     """Point radii (N,) from each Gaussian's geometric-mean std-dev, in the cloud's length unit."""
     return (scale * np.exp(cloud.log_scales.astype(np.float64).mean(axis=1))).astype(np.float32)
@@ -244,14 +254,15 @@ def log_material_legend(rec: "rr.RecordingStream", entity: str) -> None:
 
 def log_material_views(rec: "rr.RecordingStream", cloud: "SplatCloud", time_s: float | None = None,
                        root: str = DEFAULT_ROOT, means: np.ndarray | None = None,
-                       radii: np.ndarray | float | None = None) -> tuple[str, str, str]:
-    """Log `cloud` three times under `root`: `rgb` (base colour), `material` (class colours, with
-    class ids for hover labels) and `log_E` (viridis over log10 E). Clouds without material
-    attributes get grey material/E views. `means` overrides positions (e.g. world coordinates).
-    Returns the three entity paths (for `log_positions` and `send_layout`)."""
+                       radii: np.ndarray | float | None = None) -> tuple[str, ...]:
+    """Log `cloud` four times under `root`: `rgb` (base colour), `material` (class colours, with
+    class ids for hover labels), `log_E` (viridis over log10 E) and `confidence` (magma over the
+    per-Gaussian `confidence` annotate writes, 0–1). Views whose attribute the cloud lacks are grey.
+    `means` overrides positions (e.g. world coordinates). Returns the entity paths, the same as
+    `MATERIAL_VIEW_ENTITIES` for the default root (for `log_positions` and `send_layout`)."""
     import rerun as rr
 
-    entities = (f"{root}/rgb", f"{root}/material", f"{root}/log_E")
+    entities = tuple(f"{root}/{k}" for k in VIEW_NAMES)
     if not rec.is_enabled():
         return entities
     pos = np.asarray(cloud.means if means is None else means, dtype=np.float32).reshape(-1, 3)
@@ -270,6 +281,8 @@ def log_material_views(rec: "rr.RecordingStream", cloud: "SplatCloud", time_s: f
         rec.log(entities[1], rr.Points3D(pos, colors=grey, radii=r), static=static)
     E_colors = log_e_colors(cloud.get("E")) if cloud.has("E") else grey
     rec.log(entities[2], rr.Points3D(pos, colors=E_colors, radii=r), static=static)
+    conf_colors = confidence_colors(cloud.get("confidence")) if cloud.has("confidence") else grey
+    rec.log(entities[3], rr.Points3D(pos, colors=conf_colors, radii=r), static=static)
     return entities
 
 
@@ -297,7 +310,7 @@ def log_scalar(rec: "rr.RecordingStream", entity: str, value: float, time_s: flo
 def send_layout(rec: "rr.RecordingStream", entities: Sequence[str] = MATERIAL_VIEW_ENTITIES,
                 names: Sequence[str] | None = None, plots: Sequence[str] = (),
                 fps: float | None = None, shared: Sequence[str] = (), images: Sequence[str] = ()) -> None:
-    """Send a blueprint: one 3D view per entity side by side (default the three material views),
+    """Send a blueprint: one 3D view per entity side by side (default the four material views),
     each also showing the `shared` entities (e.g. a ground plane), optional 2D views of `images`
     (e.g. real splat renders, `log_image`) and time-series plots below them, and an expanded time
     panel on the `time` line."""
