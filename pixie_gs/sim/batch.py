@@ -7,7 +7,9 @@ one run's. The runs share a State (sim/state.py) — run r owns the particle slo
 offsets[r] ≤ p < offsets[r+1] — and a 4-D grid (one grid per run, so no run feels another), and
 each keeps its own scene forces, material arrays, substep count (CFL), impulses, stiffness cap
 and divergence guard: a batched run takes the same substeps with the same dt as it would alone
-(batch_kernels.py). A run that diverges is stopped and reported; the others go on.
+(batch_kernels.py). A run that diverges is stopped and reported; the others go on. A run with a
+part stiffer than the substep budget allows is stopped at once and `simulate_batch` runs it
+alone, so the unbatched MPMSolver decides what that part becomes (rigid body or softened).
 
 Runs must share the grid (domain origin, cell size, node counts), walls, constitutive settings
 (scene.materials) and solver settings; everything else may differ.
@@ -22,7 +24,7 @@ import warp as wp
 
 from ..errors import ComputationError, InputError
 from ..materials import MATERIAL_NAMES, SNOW
-from ..progress import progress, stage
+from ..progress import progress
 from ..splat import SplatCloud
 from . import batch_kernels as bk
 from . import kernels
@@ -36,7 +38,7 @@ def batch_key(scene: Scene) -> tuple:
     """What runs of one batch must share (grid, walls, materials and solver settings)."""
     m, s = scene.materials, scene.solver
     return (tuple(np.round(scene.domain_origin(), 9)), round(scene.dx, 12), tuple(scene.grid_dims), scene.walls,
-            tuple(vars(m).items()), (s.cfl, s.velocity_cfl, s.max_substeps_per_frame))
+            repr(sorted(vars(m).items())), repr(sorted(vars(s).items())))
 
 
 @dataclass
@@ -51,14 +53,11 @@ class _Run:
     wave_speed: np.ndarray
     moving: np.ndarray
     moving_snow: np.ndarray
-    yield_base: np.ndarray
-    yield_from_strain: np.ndarray
     wind_peak: float
-    scale: np.ndarray
     c_static: float = 0.0
-    stiffness_scale: float = 1.0
     alive: bool = True
     error: ComputationError | None = None
+    over_budget: bool = False  # a part needed more substeps than allowed: stopped, to be run alone
     substeps_last_frame: int = 0
     dt: float = math.inf
 
@@ -98,12 +97,12 @@ class BatchedSolver:
             p.validate()
             MPMSolver._check_inside(self, p.x)
             fixed = held_particles(p, sc)
-            ys, from_strain = yield_stresses(p, sc)
+            ys, _ = yield_stresses(p, sc)
             moving = ~fixed
             winds = sum(float(np.linalg.norm(w.acceleration)) * (1.0 + w.gust_amplitude) for w in sc.wind)
             self._runs.append(_Run(sc, int(self.offsets[r]), int(self.offsets[r + 1]), p.E.astype(np.float64),
                                    p.nu.astype(np.float64), p_wave_speed(p.E, p.nu, p.density), moving,
-                                   moving & (p.material_id == SNOW), ys, from_strain, winds, np.ones(len(p))))
+                                   moving & (p.material_id == SNOW), winds))
             fixed_all.append(fixed)
             ys_all.append(ys)
             x_all.append(p.x)
@@ -122,7 +121,7 @@ class BatchedSolver:
         self.fixed_flag = wp.array(self.fixed.astype(np.int32), dtype=wp.int32, device=d)
         self.run = wp.array(np.repeat(np.arange(self.k, dtype=np.int32), counts), dtype=wp.int32, device=d)
         for run in self._runs:
-            self._set_stiffness(run, run.scale)
+            self._set_stiffness(run)
         shape = (self.k,) + tuple(self.dims)
         self.grid_mass = wp.zeros(shape, dtype=float, device=d)
         self.grid_momentum = wp.zeros(shape, dtype=wp.vec3, device=d)
@@ -190,17 +189,17 @@ class BatchedSolver:
                                       st.Jp, self.fixed_flag, self.run, self.grid_info, self.material_params,
                                       self.dt_run, self.n_sub, 0, self.grid_velocity, st.stress])
 
-    def _set_stiffness(self, run: _Run, scale: np.ndarray) -> None:
-        """μ, λ and wave speed of one run's particles for E·scale (MPMSolver._set_stiffness per run)."""
-        mu, lam = lame_parameters(run.E * scale, run.nu)
-        c = run.wave_speed * np.sqrt(scale)
+    def _set_stiffness(self, run: _Run) -> None:
+        """Upload μ, λ and the wave speed of one run's particles (as MPMSolver._set_stiffness; a
+        batch never softens: a run over the substep budget is stopped and run alone)."""
+        mu, lam = lame_parameters(run.E, run.nu)
+        c = run.wave_speed
         a, b = run.start, run.stop
         self.mu[a:b].assign(mu.astype(np.float32))
         self.lam[a:b].assign(lam.astype(np.float32))
         self.wave_c[a:b].assign(c.astype(np.float32))
         static = run.moving & ~run.moving_snow
         run.c_static = float(c[static].max()) if static.any() else 0.0
-        run.scale = scale
 
     # ------------------------------------------------------------------ per-run CFL (as MPMSolver)
     def _cfl_dt(self, c_mps: float) -> float:
@@ -215,30 +214,13 @@ class BatchedSolver:
         dt = self._cfl_dt(self._wave_speed(run, snow_wave))
         n_elastic = math.ceil(frame_dt_s / dt) if math.isfinite(dt) else 1
         if n_elastic > s.max_substeps_per_frame:
-            self._cap_stiffness(r, frame_dt_s)
-            n_elastic = math.ceil(frame_dt_s / self._cfl_dt(self._wave_speed(run, snow_wave)))
+            return 0  # over the budget: the caller runs it alone (MPMSolver's stiff-part handling)
         accel = float(np.linalg.norm(run.scene.gravity)) + run.wind_peak
         kicks = sum(float(np.linalg.norm(run.scene.impulses[i].velocity_change)) for rr, i in self._pending
                     if rr == r and run.scene.impulses[i].time_s < self.time_s + frame_dt_s)
         v_bound = max_speed + accel * frame_dt_s + kicks
         n_velocity = math.ceil(frame_dt_s * v_bound / (s.velocity_cfl * self.dx))
         return int(min(max(1, n_elastic, n_velocity), s.max_substeps_per_frame))
-
-    def _cap_stiffness(self, r: int, frame_dt_s: float) -> None:
-        """MPMSolver._cap_stiffness for one run (its too-stiff parts softened, said in a stage line)."""
-        run = self._runs[r]
-        s = self.scene.solver
-        c_allowed = s.cfl * self.dx * s.max_substeps_per_frame / frame_dt_s
-        scale = np.minimum(1.0, (c_allowed / np.maximum(run.wave_speed, 1e-30)) ** 2) * 0.999
-        scale = np.where(run.wave_speed * np.sqrt(run.scale) > c_allowed, scale, run.scale)
-        self._set_stiffness(run, scale)
-        ys = np.where(run.yield_from_strain, run.yield_base * scale, run.yield_base)
-        self.yield_stress[run.start:run.stop].assign(ys.astype(np.float32))
-        run.stiffness_scale = float(scale[run.moving].min()) if run.moving.any() else 1.0
-        mids = self.material_id[run.start:run.stop]
-        softened = sorted({MATERIAL_NAMES[int(m)] for m in mids[(scale < 1.0) & run.moving]})
-        stage(f"run {r}: stiffness of {', '.join(softened)} capped at {run.stiffness_scale:.2g}×E to fit "
-              f"{s.max_substeps_per_frame} substeps per frame (raise solver.max_substeps_per_frame to avoid)")
 
     # ------------------------------------------------------------------ stepping
     def _reduce(self, v_limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -267,8 +249,10 @@ class BatchedSolver:
         return [r.substeps_last_frame for r in self._runs]
 
     @property
-    def stiffness_scales(self) -> list[float]:
-        return [r.stiffness_scale for r in self._runs]
+    def over_budget(self) -> list[bool]:
+        """Per run: stopped because a part needs more than solver.max_substeps_per_frame (the
+        unbatched MPMSolver decides what such parts become: rigid, softened or an error)."""
+        return [r.over_budget for r in self._runs]
 
     def dt(self, r: int) -> float:
         """Largest stable substep (s) of run r from the elastic CFL (as MPMSolver.dt)."""
@@ -288,6 +272,9 @@ class BatchedSolver:
         for r, run in enumerate(self._runs):
             if run.alive:
                 n_sub[r] = self._substeps(r, frame_dt_s, float(maxima[r, 0]), float(maxima[r, 1]))
+                if n_sub[r] == 0:
+                    run.alive = False
+                    run.over_budget = True
         dts = np.where(n_sub > 0, frame_dt_s / np.maximum(n_sub, 1), 0.0)
         self.n_sub.assign(n_sub)
         self.dt_run.assign(dts.astype(np.float32))
@@ -395,7 +382,7 @@ def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: flo
     """`sim.run.simulate` for several (cloud, scene) models at once, on one shared grid shape:
     one Trajectory per model, or the ComputationError that stopped that model's run (the others
     still finish). Raises InputError for unusable input (as simulate does)."""
-    from .run import Trajectory, build_particles
+    from .run import Trajectory, build_particles, simulate
 
     if frames < 1:
         raise InputError(f"frames must be ≥ 1, got {frames}")
@@ -427,6 +414,12 @@ def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: flo
         err = solver.errors[r]
         if err is not None:
             out.append(err)
+            continue
+        if solver.over_budget[r]:  # stiff parts: the unbatched solver decides (rigid / softened / error)
+            try:
+                out.append(simulate(*models[r], frames, fps, device=device, fill=fill, quiet=True))
+            except ComputationError as error:
+                out.append(error)
             continue
         out.append(Trajectory(t=t, x=xs[r], transform=tf, dt_s=float(solver.dt(r)),
                               substeps_per_frame=int(solver.substeps_last_frame[r]),

@@ -1,0 +1,186 @@
+"""Batched simulation (sim/batch.py): K runs in one launch must equal K separate runs.
+
+The independent reference is the unbatched MPMSolver (its physics is tested against analytic
+answers in test_sim_physics.py): every run of a batch — different forces, stiffness, substep
+counts, impulses, fixed parts, plasticity — is compared frame by frame with the same model run
+alone (particles in the same order, so on the CPU the bits agree). Runs on every Warp device
+present (cpu always, cuda when a GPU is there)."""
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from pixie_gs.diagnose.forward import ForwardModel
+from pixie_gs.diagnose.measured import tracks_from_arrays
+from pixie_gs.diagnose.pipeline import DiagnoseOptions, diagnose
+from pixie_gs.diagnose.synthetic import make_measurement, toss_scene, two_part_block
+from pixie_gs.errors import ComputationError, InputError
+from pixie_gs.materials import JELLY, METAL
+from pixie_gs.sim import MPMSolver, Particles, Scene
+from pixie_gs.sim.batch import BatchedSolver, simulate_batch
+from pixie_gs.sim.run import simulate
+from test_sim_kernels import device  # noqa: F401  (the per-device fixture)
+
+BASE = {"domain": {"size_m": 1.0, "grid": 20}, "ground": {"friction": 0.3},
+        "impulses": [{"time_s": 0.0, "velocity_change": [1.5, 0.0, 1.0]}]}
+
+
+def scene_with(**keys: object) -> Scene:
+    d = copy.deepcopy(BASE)
+    d.update(keys)
+    return Scene.from_dict(d)
+
+
+def block(E: float = 1e4, **attrs: object) -> Particles:
+    attrs = {"nu": 0.3, "density": 500.0, "material_id": JELLY, **attrs}
+    p = Particles.lattice((-0.08, -0.06, 0.05), (0.08, 0.06, 0.15), 0.025, E=E, **attrs)
+    p.part_id = (p.x[:, 2] > 0.1).astype(np.int32)  # two parts: bottom 0, top 1
+    return p
+
+
+def varied_runs() -> list[tuple[Particles, Scene]]:
+    metal = block(E=2e5, material_id=METAL, yield_stress=150.0)
+    return [
+        (block(), scene_with()),
+        (block(), scene_with(damping=2.5)),
+        (block(), scene_with(air_drag=3.0)),
+        (block(), scene_with(ground={"friction": 1.2})),
+        (block(), scene_with(wind=[{"acceleration": [0.0, 3.0, 0.0], "gust_amplitude": 0.5,
+                                    "gust_frequency_hz": 3.0, "start_s": 0.05},
+                                   {"acceleration": [-2.0, 0.0, 0.0], "region": {"min": [-1, -1, -1],
+                                                                                 "max": [1, 1, 0.12]}}])),
+        (block(E=2e5), scene_with()),  # stiffer: about 4× the substeps of the others
+        (block(), scene_with(fixed=[{"part_ids": [0]}])),  # bottom held: the top swings
+        (metal, scene_with(impulses=[{"time_s": 0.04, "velocity_change": [0.0, 0.0, -4.0],
+                                      "region": {"min": [-1, -1, 0.1], "max": [1, 1, 1]}}])),
+        (block(), scene_with(gravity=[0.0, 0.0, -3.0])),
+    ]
+
+
+def tol(device: str) -> float:
+    """CPU: bit-identical (same arithmetic, threads in order); CUDA: atomics add in any order."""
+    return 0.0 if device == "cpu" else 2e-3
+
+
+def test_batched_runs_equal_separate_runs(device):
+    runs = varied_runs()
+    batch = BatchedSolver(runs, device)
+    alone = [MPMSolver(p, sc, device, sort_every=0, p2g="atomic") for p, sc in runs]
+    for _ in range(6):
+        batch.step_frame(1.0 / 25)
+        for r, sim in enumerate(alone):
+            sim.step_frame(1.0 / 25)
+            assert batch.substeps_last_frame[r] == sim.substeps_last_frame
+            np.testing.assert_allclose(batch.positions(r), sim.positions(), rtol=0, atol=tol(device),
+                                       err_msg=f"run {r}")
+    for r, sim in enumerate(alone):
+        np.testing.assert_allclose(batch.velocities(r), sim.velocities(), rtol=0, atol=20 * tol(device))
+        np.testing.assert_allclose(batch.deformation_gradients(r), sim.deformation_gradients(), rtol=0,
+                                   atol=20 * tol(device))
+    subs = batch.substeps_last_frame
+    assert subs[5] > 2 * subs[0]  # the stiff run really took its own, smaller dt
+    moved = [np.abs(batch.positions(r) - p.x).max() for r, (p, _) in enumerate(runs)]
+    free = [m for r, m in enumerate(moved) if r != 6]
+    assert min(free) > 0.02 and np.ptp(free) > 0.01  # every free run moved, and not all alike
+    held = runs[6][0].part_id == 0
+    np.testing.assert_array_equal(batch.positions(6)[held], runs[6][0].x[held])  # the held part stays put
+
+
+def test_a_diverging_run_stops_alone_and_the_others_go_on(device):
+    # two halves thrown into each other at 60 m/s with at most 4 substeps a frame: F collapses
+    keys = {"solver": {"max_substeps_per_frame": 4}}
+    clash = scene_with(impulses=[{"time_s": 0.0, "velocity_change": [60.0, 0.0, 0.0],
+                                  "region": {"min": [-1, -1, -1], "max": [0.0, 1, 1]}},
+                                 {"time_s": 0.0, "velocity_change": [-60.0, 0.0, 0.0],
+                                  "region": {"min": [0.0, -1, -1], "max": [1, 1, 1]}}], **keys)
+    runs = [(block(E=100.0), scene_with(**keys)), (block(E=100.0), clash),
+            (block(E=100.0), scene_with(damping=1.0, **keys))]
+    batch = BatchedSolver(runs, device)
+    alone = MPMSolver(*runs[1], device, sort_every=0)
+    with pytest.raises(ComputationError, match="diverged") as raised:
+        for _ in range(4):
+            alone.step_frame(1.0 / 25)
+    for _ in range(4):
+        batch.step_frame(1.0 / 25)
+    assert [e is None for e in batch.errors] == [True, False, True]
+    assert str(batch.errors[1]).split(":")[0] == str(raised.value).split(":")[0]  # same frame and time
+    for r in (0, 2):
+        sim = MPMSolver(*runs[r], device, sort_every=0, p2g="atomic")
+        for _ in range(4):
+            sim.step_frame(1.0 / 25)
+        np.testing.assert_allclose(batch.positions(r), sim.positions(), rtol=0, atol=tol(device))
+
+
+def test_a_run_over_the_substep_budget_is_run_alone(device):
+    """A part too stiff for the budget is the unbatched solver's call (rigid body or softened):
+    the batch stops that run and simulate_batch hands it to sim.run.simulate."""
+    cloud = two_part_block(200, seed=2)
+    scene = toss_scene()
+    scene.solver.max_substeps_per_frame = 12
+    stiff = cloud.copy()
+    stiff.set("E", np.full(len(cloud), 5e6, np.float32), np.float32)
+    batch = BatchedSolver([(block(), scene_with(solver={"max_substeps_per_frame": 12})),
+                           (block(E=5e6), scene_with(solver={"max_substeps_per_frame": 12}))], device)
+    batch.step_frame(1.0 / 25)
+    assert batch.over_budget == [False, True] and batch.errors == [None, None]
+    trajs = simulate_batch([(cloud, scene), (stiff, scene)], 6, 25.0, device=device)
+    ref = simulate(stiff, scene, 6, 25.0, device=device, quiet=True)
+    np.testing.assert_array_equal(trajs[1].x, ref.x)
+
+
+def test_runs_on_different_grids_are_refused():
+    with pytest.raises(InputError, match="same grid"):
+        BatchedSolver([(block(), scene_with()), (block(), scene_with(domain={"size_m": 1.0, "grid": 24}))])
+
+
+def test_simulate_batch_matches_simulate_per_model(device):
+    """Cloud-level API: same placement and output frames as sim.run.simulate (which sorts the
+    particles by cell: float rounding differs, so a tolerance of 0.1 mm over 12 frames)."""
+    cloud = two_part_block(300, seed=1)
+    scene = toss_scene()
+    drag = copy.deepcopy(scene)
+    drag.air_drag = 2.0
+    trajs = simulate_batch([(cloud, scene), (cloud, drag)], 12, 25.0, device=device)
+    for traj, sc in zip(trajs, (scene, drag)):
+        ref = simulate(cloud, sc, 12, 25.0, device=device, quiet=True)
+        np.testing.assert_allclose(traj.t, ref.t)
+        assert traj.substeps_per_frame == ref.substeps_per_frame
+        np.testing.assert_allclose(traj.x, ref.x, rtol=0, atol=1e-4)
+    assert np.abs(trajs[0].x[-1] - trajs[1].x[-1]).max() > 5e-3
+
+
+def test_forward_model_batched_predictions_equal_one_by_one(device):
+    cloud = two_part_block(300, seed=0)
+    scene = toss_scene()
+    arrays = make_measurement(cloud, scene, 10, 25.0, "air_drag", None, {"k_per_m": 2.0}, fraction=0.1,
+                              seed=3, device=device)
+    tracks = tracks_from_arrays(arrays["t"], arrays["x"], cloud, ids=arrays["ids"])
+    variants = []
+    for k in (0.5, 1.0, 4.0):
+        sc = copy.deepcopy(scene)
+        sc.air_drag = k
+        variants.append((sc, None))
+    one = ForwardModel(cloud, tracks, device=device, batch=False)
+    many = ForwardModel(cloud, tracks, device=device, batch=True)
+    ref = [one.predict(sc, c) for sc, c in variants]
+    got = many.predict_many(variants + variants[:1])  # a duplicate is simulated once
+    assert many.runs == 3 and many.batches == 1
+    for a, b in zip(got, ref + ref[:1]):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-4)
+
+
+def test_batched_diagnosis_names_the_hidden_effect():
+    """The whole loop with every stage's runs batched (CPU: the CPU default is unbatched)."""
+    cloud = two_part_block(300, seed=0)
+    scene = toss_scene()
+    arrays = make_measurement(cloud, scene, 15, 25.0, "wind", None,
+                              {"ax_m_s2": 0.0, "ay_m_s2": 2.0, "az_m_s2": 0.0}, fraction=0.1, noise_m=1e-3,
+                              seed=7, device="cpu")
+    tracks = tracks_from_arrays(arrays["t"], arrays["x"], cloud, ids=arrays["ids"])
+    d = diagnose(cloud, scene, tracks, device="cpu",
+                 options=DiagnoseOptions(solver_floor=False, batch=True, max_effects=1))
+    assert d.effect is not None and d.effect.effect == "wind"
+    assert d.effect.params["ay_m_s2"] == pytest.approx(2.0, abs=0.4)
+    assert d.gap_after < 0.3 * d.gap_before
