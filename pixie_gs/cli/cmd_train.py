@@ -36,7 +36,9 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--workers", type=int, default=1, help="processes reading the dataset")
     p.add_argument("--limit-train", type=int, default=None, help="use only the first K train objects")
     p.add_argument("--limit-val", type=int, default=None, help="use only the first K val objects")
-    p.add_argument("--log", default=None, metavar="JSON", help="write the per-epoch history here")
+    p.add_argument("--log", "--log-json", dest="log", default=None, metavar="JSON",
+                   help="write the per-epoch history here (under torchrun write --log-json: torchrun's own "
+                   "parser takes --log for an abbreviation of its options)")
     p.set_defaults(func=run)
     return p
 
