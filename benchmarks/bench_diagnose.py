@@ -4,6 +4,8 @@ runtime of one 20k-particle, 2-second diagnosis.
     python benchmarks/bench_diagnose.py                      # both parts, CPU
     python benchmarks/bench_diagnose.py --part confusion     # only the confusion matrix
     python benchmarks/bench_diagnose.py --part runtime --device cuda   # runtime on a GPU
+    python benchmarks/bench_diagnose.py --part runtime --batch off     # candidate runs one by one
+    python benchmarks/bench_diagnose.py --part batch --device cuda     # K runs batched vs one by one
 
 Confusion part: for each object (a generated two-part block, and a generated three-part shrub
 from the dataset generator), each effect of the library hidden at two strengths (and once with
@@ -13,6 +15,12 @@ matrix (hidden → named first) and each case's RMS gap before/after.
 Runtime part: one diagnosis of a 20 000-Gaussian object over 2 s (61 frames at 30 fps), with
 the same outputs as the CLI (improved model written, re-simulated, PNG + rerun), reported
 against the baseline of ONE full simulation of the same model measured in the same run.
+Batch part: K variants (air drag 0…3 1/m) of the runtime object's reduced fitting model (3000
+Gaussians, grid 24, 61 frames) simulated one after the other and as one batched simulation
+(sim/batch.py), K = 1, 8, 32; prints both wall times and the speed-up, and checks the tracks agree.
+`--batch auto|on|off`: candidate runs as one batched simulation per fitting stage (sim/batch.py;
+auto = on a GPU only). Warp compiles its kernels once per machine: a warm-up before the timed
+part runs both the unbatched and the batched kernels once, and its time is printed apart.
 """
 from __future__ import annotations
 
@@ -121,12 +129,19 @@ def confusion(device: str, frames: int, fps: float, n_block: int, n_shrub: int) 
           "simulations per diagnosis (simulation cache shared per object)")
 
 
-def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values: dict) -> None:
+def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values: dict,
+            batch: bool | None = None) -> None:
+    from pixie_gs.sim.batch import simulate_batch
     from pixie_gs.sim.run import simulate
 
     cloud = two_part_block(n, seed=0)
     scene = toss_scene(grid=32)
     frames = int(round(seconds * fps)) + 1
+    start = time.perf_counter()
+    small = two_part_block(200, seed=1)
+    simulate(small, scene, 3, fps, device=device)  # warm-up: Warp init and kernel (compile or) load
+    simulate_batch([(small, scene), (small, scene)], 3, fps, device=device)
+    warm = time.perf_counter() - start
     start, cpu_start = time.perf_counter(), time.process_time()
     simulate(cloud, scene, frames, fps, device=device)
     one_sim = time.perf_counter() - start
@@ -136,18 +151,23 @@ def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values
     start = time.perf_counter()
     cpu_start = time.process_time()
     tracks = tracks_from_arrays(arrays["t"], arrays["x"], cloud, ids=arrays["ids"])
-    d = diagnose(cloud, scene, tracks, device=device, options=DiagnoseOptions(solver_floor=False))
+    d = diagnose(cloud, scene, tracks, device=device, options=DiagnoseOptions(solver_floor=False, batch=batch))
+    fitted = time.perf_counter()
     has_rerun = importlib.util.find_spec("rerun") is not None  # GPU boxes may lack rerun-sdk
     with tempfile.TemporaryDirectory() as out:
         summary = write_report(Path(out), d, cloud, device=device, rrd=has_rerun)
     total = time.perf_counter() - start
     cpu = time.process_time() - cpu_start
     named = d.effect
-    print(f"runtime: {n} Gaussians, {seconds:g} s at {fps:g} fps, device {device}, hidden {effect} {values}")
+    print(f"runtime: {n} Gaussians, {seconds:g} s at {fps:g} fps, device {device}, hidden {effect} {values}, "
+          f"batch {'auto' if batch is None else ('on' if batch else 'off')}")
+    print(f"  warm-up (Warp init, kernels loaded or compiled; not timed below): {warm:.1f} s")
     print(f"  one full simulation (baseline): {one_sim:.1f} s wall ({one_sim_cpu:.1f} s CPU)")
     print(f"  diagnosis incl. outputs: {total:.1f} s wall ({cpu:.1f} s CPU of this process) = "
           f"{total / one_sim:.1f} × one simulation (wall); "
-          f"{d.runs} simulations ({d.sim_seconds:.1f} s in the simulator), reduced fitting model: "
+          f"{d.runs} model runs ({d.sim_batches} batched simulations of several runs each), "
+          f"{d.sim_seconds:.1f} s in the simulator; fitting {fitted - start:.1f} s, outputs "
+          f"{total - (fitted - start):.1f} s; reduced fitting model: "
           f"{'yes' if d.rounds and len(cloud) > DiagnoseOptions().fidelity.max_particles else 'no'}")
     print(f"  named: {label(named.effect, named.part) if named else 'nothing'} "
           f"{ {k: round(v, 3) for k, v in named.params.items()} if named else ''}; gap "
@@ -155,20 +175,58 @@ def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values
           f"({100 * summary['gap_reduction']:.1f}% smaller)")
 
 
+def batch_speed(device: str, n: int, seconds: float, fps: float, sizes: tuple[int, ...] = (1, 8, 32)) -> None:
+    import copy
+
+    from pixie_gs.diagnose.forward import Fidelity, reduced_subset
+    from pixie_gs.sim.batch import simulate_batch
+    from pixie_gs.sim.run import simulate
+
+    fid = Fidelity()
+    cloud = two_part_block(n, seed=0)
+    keep, _ = reduced_subset(n, np.arange(0, n, 20), fid)
+    sub = cloud.subset(keep)
+    scene = toss_scene(grid=24)
+    frames = int(round(seconds * fps)) + 1
+    simulate(sub, scene, 3, fps, device=device, quiet=True)  # warm-up (kernel load / compile)
+    simulate_batch([(sub, scene)] * 2, 3, fps, device=device)
+    print(f"batch: {len(sub)} Gaussians per run, grid {scene.domain.grid}, {frames} frames, device {device}")
+    for k in sizes:
+        models = []
+        for i in range(k):
+            sc = copy.deepcopy(scene)
+            sc.air_drag = 3.0 * i / max(k - 1, 1)
+            models.append((sub, sc))
+        start = time.perf_counter()
+        alone = [simulate(c, sc, frames, fps, device=device, quiet=True) for c, sc in models]
+        t_alone = time.perf_counter() - start
+        start = time.perf_counter()
+        batched = simulate_batch(models, frames, fps, device=device)
+        t_batch = time.perf_counter() - start
+        diff = max(float(np.abs(a.x - b.x).max()) for a, b in zip(alone, batched))
+        print(f"  K={k:3d}: one by one {t_alone:6.2f} s ({t_alone / k:.3f} s per run), batched {t_batch:6.2f} s "
+              f"({t_batch / k:.3f} s per run) → {t_alone / t_batch:5.1f}× faster; max track difference {diff:.2g} m")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--part", choices=("all", "confusion", "runtime"), default="all")
+    ap.add_argument("--part", choices=("all", "confusion", "runtime", "batch"), default="all")
     ap.add_argument("--device", default="cpu", help="Warp device: cpu or cuda")
     ap.add_argument("--particles", type=int, default=20000, help="Gaussians of the runtime object")
     ap.add_argument("--seconds", type=float, default=2.0, help="simulated seconds of the runtime case")
     ap.add_argument("--block", type=int, default=500, help="Gaussians of the confusion block")
     ap.add_argument("--shrub", type=int, default=800, help="Gaussians of the confusion shrub")
+    ap.add_argument("--batch", choices=("auto", "on", "off"), default="auto",
+                    help="candidate runs as batched simulations (auto: on a GPU only)")
     args = ap.parse_args()
     set_quiet(True)
     if args.part in ("all", "confusion"):
         confusion(args.device, frames=17, fps=25.0, n_block=args.block, n_shrub=args.shrub)
     if args.part in ("all", "runtime"):
-        runtime(args.device, args.particles, args.seconds, 30.0, "air_drag", {"k_per_m": 1.5})
+        runtime(args.device, args.particles, args.seconds, 30.0, "air_drag", {"k_per_m": 1.5},
+                batch={"auto": None, "on": True, "off": False}[args.batch])
+    if args.part == "batch":
+        batch_speed(args.device, args.particles, args.seconds, 30.0)
 
 
 if __name__ == "__main__":

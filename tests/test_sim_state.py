@@ -79,7 +79,7 @@ def test_free_fall_of_a_state_follows_the_explicit_scheme(device):
         sim.step(state, state, dt)
     z = state.x.numpy()[:, 2]
     expected = p.x[:, 2] - G * dt * dt * n * (n + 1) / 2
-    np.testing.assert_allclose(z, expected, atol=2e-6)
+    np.testing.assert_allclose(z, expected, atol=1e-5)  # float32 positions: ~1e-7 per step
     np.testing.assert_allclose(state.v.numpy()[:, 2], -G * dt * n, rtol=1e-4)
 
 

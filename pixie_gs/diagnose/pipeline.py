@@ -84,6 +84,7 @@ class Diagnosis:
     registration: Registration | None = None
     floor: SolverFloor | None = None
     ambiguous: list[Scored] = field(default_factory=list)
+    sim_batches: int = 0  # batched simulations among `runs` (each counted per variant in runs)
 
     @property
     def converged(self) -> bool:
@@ -327,7 +328,7 @@ def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "au
                   f"{', '.join(a.label for a in ambiguous)}")
     return Diagnosis(rounds, accepted, copy.deepcopy(cur_scene), cur_cloud, tracks, base_pred, cur_pred,
                      runner.sigma, model.runs, model.seconds, model.cache_hits, from_materials, registration,
-                     floor, ambiguous)
+                     floor, ambiguous, model.batches)
 
 
 def prepare_tracks(tracks: MeasuredTracks, cloud: SplatCloud, scene, device: str, options: DiagnoseOptions

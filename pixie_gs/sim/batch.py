@@ -340,9 +340,11 @@ class BatchedSolver:
             x = x[alive_slots]
         if len(x) == 0:
             return (0, 0, 0), (1, 1, 1)
-        g = (x - self.origin) / self.dx
-        lo = np.maximum(np.floor(g.min(0) - 0.5).astype(int), 0)
-        hi = np.minimum(np.floor(g.max(0) - 0.5).astype(int) + 3, self.dims)
+        # bounds first, then to cells: two reductions of the float32 array, no N×3 temporaries
+        g_lo = (x.min(0).astype(np.float64) - self.origin) / self.dx
+        g_hi = (x.max(0).astype(np.float64) - self.origin) / self.dx
+        lo = np.maximum(np.floor(g_lo - 0.5).astype(int), 0)
+        hi = np.minimum(np.floor(g_hi - 0.5).astype(int) + 3, self.dims)
         return tuple(int(a) for a in lo), tuple(int(b - a) for a, b in zip(lo, hi))  # type: ignore[return-value]
 
     def _guard(self, bad: np.ndarray, v_limits: np.ndarray) -> None:
