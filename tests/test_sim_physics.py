@@ -281,7 +281,7 @@ def test_particles_outside_the_domain_are_an_input_error(device):
 
 
 def test_too_stiff_material_is_softened_to_fit_the_substep_cap(device):
-    scene = make_scene(domain={"size_m": 0.4, "grid": 20}, solver={"max_substeps_per_frame": 50})
+    scene = make_scene(domain={"size_m": 0.4, "grid": 20}, solver={"max_substeps_per_frame": 50, "stiff_parts": "soften"})
     lo, hi = (-0.04, -0.04, 0.02), (0.04, 0.04, 0.1)
     first = small_block(scene, lo=lo, hi=hi, material_id=METAL, E=7e10, density=2700.0, yield_stress=1e8)
     can = join(first, small_block(scene, lo=(0.1, 0.1, 0.02), hi=(0.14, 0.14, 0.06), material_id=METAL,

@@ -22,6 +22,7 @@ BOUNDARY_CELLS = 3  # grid nodes this close to the domain faces act as walls (B-
 PRESETS = ("drop", "wind", "push")
 UP_AXES = ("x", "y", "z", "-x", "-y", "-z")
 Vec3 = tuple[float, float, float]
+STIFF_PART_MODES = ("auto", "rigid", "soften", "true")  # solver.stiff_parts (sim/rigid.py), default first
 MAX_SCENE_BYTES = 10_000_000  # a scene file is a few kB; refuse anything absurd before parsing
 MAX_MAGNITUDE = 1e12  # any number of a scene (m, s, m/s, Pa, …): beyond, float32 physics is meaningless
 MAX_SIZE_M = 1e4  # domain and object sides (m)
@@ -133,14 +134,18 @@ class PartOverride:
 class SolverSettings:
     """cfl: fraction of a cell the fastest elastic wave crosses per substep (0.3–0.5 is stable);
     velocity_cfl: fraction of a cell the fastest particle moves per substep;
-    max_substeps_per_frame: cap; when the stiffest material needs more, its stiffness is
-    lowered to fit (reported) — such parts are effectively rigid at frame resolution;
+    max_substeps_per_frame: the substep budget; a part needing more is handled per part by
+    stiff_parts (each choice printed, sim/rigid.py): "auto" (a solid part that would have to be
+    softened more than 10× becomes a rigid body coupled to the grid, milder cases are softened),
+    "rigid" (every solid part over budget is rigid), "soften" (E lowered to fit, yield strain
+    kept), "true" (never change a material: an error names the substeps needed);
     particles_per_cell: interior filling density used by sim-io."""
 
     cfl: float = 0.4
     velocity_cfl: float = 0.25
     max_substeps_per_frame: int = 2000
     particles_per_cell: int = 8
+    stiff_parts: str = "auto"
 
 
 @dataclass
@@ -329,6 +334,13 @@ class _SceneParser:
             raise self.fail(f"{key}.{name}" if key else name, f"must be true or false, got {_show(value)}")
         return value
 
+    def choice(self, d: dict, name: str, key: str, allowed: tuple[str, ...]) -> str:
+        """One of `allowed` (the first is the default)."""
+        value = d.get(name, allowed[0])
+        if value not in allowed:
+            raise self.fail(f"{key}.{name}", f"must be one of {', '.join(allowed)}, got {_show(value)}")
+        return value
+
     def vec3(self, value: Any, key: str) -> Vec3:
         if not isinstance(value, list) or len(value) != 3 or not all(_finite_number(v) for v in value):
             raise self.fail(key, f"must be a list of 3 finite numbers (|x| ≤ {MAX_MAGNITUDE:g}), got {_show(value)}")
@@ -461,7 +473,8 @@ class _SceneParser:
         return SolverSettings(self.number(s, "cfl", "solver", 0.4, lo=0.0, hi=1.0, lo_open=True),
                               self.number(s, "velocity_cfl", "solver", 0.25, lo=0.0, hi=1.0, lo_open=True),
                               self.integer(s, "max_substeps_per_frame", "solver", 2000, lo=1, hi=10_000_000),
-                              self.integer(s, "particles_per_cell", "solver", 8, lo=1, hi=64))
+                              self.integer(s, "particles_per_cell", "solver", 8, lo=1, hi=64),
+                              self.choice(s, "stiff_parts", "solver", STIFF_PART_MODES))
 
     def materials(self, value: Any) -> MaterialSettings:
         m = self.table(value, "materials", tuple(MaterialSettings.__dataclass_fields__))

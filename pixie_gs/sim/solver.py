@@ -31,6 +31,7 @@ from .constitutive import NO_YIELD
 from .particles import Particles
 from .reduce import FrameStats, StatsReducer, reference_stats
 from .scene import BOUNDARY_CELLS, Scene
+from .rigid import PartChoice, RigidBodies, plan_stiff_parts, wall_bounds
 from .sort import cell_order, cell_runs, chunk_runs, permute_in_place
 from .state import ARRAY_FIELDS, State
 
@@ -113,6 +114,10 @@ class MPMSolver:
         self.substeps_last_frame = 0
         self.particle_substeps = 0
         self.stiffness_scale = 1.0
+        self.stiff_part_choices: list[PartChoice] = []  # per part over the substep budget (sim/rigid.py)
+        self.rigid: RigidBodies | None = None  # parts too stiff for the budget, run as rigid bodies
+        self._part_id = particles.part_id.copy()
+        self._mass_host = particles.mass  # kg, for rigid bodies
         if sort_every is None:
             sort_every = 1 if self.device == "cpu" or self.n >= SORT_MIN_PARTICLES else 0
         self.sort_every = int(sort_every)
@@ -384,19 +389,39 @@ class MPMSolver:
         return v_now + accel * frame_dt_s + kicks
 
     def _cap_stiffness(self, frame_dt_s: float) -> None:
-        """Soften parts whose wave speed needs more substeps than allowed (they stay nearly rigid)."""
+        """Parts whose wave speed needs more substeps than the budget: per part a rigid body coupled
+        to the grid, softened, or an InputError, by scene.solver.stiff_parts (sim/rigid.py); one
+        printed line per part."""
         s = self.scene.solver
-        c_allowed = s.cfl * self.dx * s.max_substeps_per_frame / frame_dt_s
-        scale = np.minimum(1.0, (c_allowed / np.maximum(self._wave_speed, 1e-30)) ** 2) * 0.999
-        scale = np.where(self._wave_speed * np.sqrt(self._scale) > c_allowed, scale, self._scale)
+        plan = plan_stiff_parts(s.stiff_parts, self.positions(), self._part_id, self.material_id, self._E,
+                                self._wave_speed, self._scale, self._moving, self.fixed, frame_dt_s, s.cfl, self.dx,
+                                s.max_substeps_per_frame, self.origin, allow_rigid=self.rigid is None)
+        for choice in plan.choices:
+            stage(choice.line())
+        self.stiff_part_choices.extend(plan.choices)
+        scale = plan.E_scale
+        if plan.held.any():
+            self._hold(plan.held)
+        if plan.n_bodies:
+            self.rigid = RigidBodies(plan.body, self.positions(), self.velocities(), self._mass_host, self.device)
+            self.rigid.place(self.x, self.v, self.C, self.F, self.stress, self.order)
+            sc = self.scene
+            self._rigid_walls = (*wall_bounds(self.origin, self.dx, self.dims, BOUNDARY_CELLS, sc.ground.enabled,
+                                              sc.ground.height_m), sc.ground.friction if sc.ground.enabled else 0.0)
         self._set_stiffness(scale)
         # a softened part keeps its yield *strain*: default yield stresses (strain · E) scale too
-        ys = np.where(self._yield_from_strain, self._yield_base * scale, self._yield_base)
+        ys = np.where(self._yield_from_strain & (scale > 0), self._yield_base * scale, self._yield_base)
         self.yield_stress.assign(self._to_slots(ys.astype(np.float32)))
-        self.stiffness_scale = float(scale[self._moving].min()) if self._moving.any() else 1.0
-        softened = sorted({MATERIAL_NAMES[int(m)] for m in self.material_id[(scale < 1.0) & self._moving]})
-        stage(f"stiffness of {', '.join(softened)} capped at {self.stiffness_scale:.2g}×E to fit "
-              f"{s.max_substeps_per_frame} substeps per frame (raise solver.max_substeps_per_frame to avoid)")
+        soft = self._moving & (scale > 0)
+        self.stiffness_scale = float(scale[soft].min()) if soft.any() else 1.0
+
+    def _hold(self, held: np.ndarray) -> None:
+        """Hold particles (caller's order) in place from now on, as scene.fixed would."""
+        self.fixed = self.fixed | held
+        self._moving = ~self.fixed
+        self._moving_snow &= self._moving
+        self.fixed_flag.assign(self._to_slots(self.fixed.astype(np.int32)))
+        self.set_velocities(self.velocities())
 
     def step_frame(self, frame_dt_s: float) -> None:
         """Advance the simulation by frame_dt_s seconds in ceil(frame_dt_s / dt) substeps."""
@@ -492,8 +517,12 @@ class MPMSolver:
         self._grid.launch()
         if timer is not None:
             timer.mark("grid")
+        if self.rigid is not None:  # momentum in from the grid, one rigid step (sim/rigid.py)
+            self.rigid.advance(self.x, self.mass, self.order, self.grid_info, self.grid_velocity, *self._rigid_walls, dt)
         self._g2p.set_param_by_name("dt", dt)
         self._g2p.launch()
+        if self.rigid is not None:  # velocity out: rigid particles take their body's motion
+            self.rigid.place(self.x, self.v, self.C, self.F, self.stress, self.order)
         if timer is not None:
             timer.mark("g2p")
 

@@ -1,0 +1,358 @@
+"""Stiff parts: per part, true stiffness, a rigid body coupled to the MPM grid, or softened.
+
+Why: an explicit MPM substep must not let the fastest elastic wave cross more than a fraction of
+a cell, so a 7e10 Pa aluminium can needs tens of thousands of substeps per frame. When a part
+needs more than `solver.max_substeps_per_frame`, `plan_stiff_parts` decides per part (by
+`solver.stiff_parts`, docs/scene.md): "auto" (default) and "rigid" make a solid part (jelly or
+metal) a rigid body — "auto" only when it would otherwise have to be softened more than
+AUTO_SOFTEN_LIMIT×, milder cases are softened; "soften" lowers E until it fits (yield strain
+kept); "true" refuses to run (InputError) rather than change the material. Sand, snow, fluid and
+visco-plastic parts are never made rigid (they flow): they are softened. Every choice is one
+printed line, e.g. "part 3 (metal, 1,204 particles): E 7e+10 Pa needs 31,008 substeps/frame,
+budget 2,000 → rigid".
+
+A rigid body is coupled to the grid (`RigidBodies`): its particles scatter mass and momentum in
+P2G like any particle, so soft material, the ground and walls act on it through the shared grid
+nodes; after the grid update the grid velocities at its particles are summed into the body's
+linear and angular momentum (momentum in), the body moves as one (v, ω; COM and orientation
+quaternion), and its particles get position c + R·r₀, velocity v + ω×r, APIC matrix C = [ω]×,
+F = R and no stress (velocity out: the next P2G hands the rigid motion back to the grid).
+Relative distances inside a body are therefore kept to float precision. The ground and the
+domain walls also stop a body as a whole (its lowest point cannot pass the floor; Coulomb
+friction on its sliding speed), which the node-wise grid boundary alone would only do for the
+fraction of its mass that sits on boundary nodes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from ..errors import InputError
+from ..materials import JELLY, MATERIAL_NAMES, METAL
+from .kernels import GridInfo, bspline_weights, stencil_of
+from .scene import STIFF_PART_MODES
+
+AUTO_SOFTEN_LIMIT = 0.1  # "auto": a solid part that would need E × less than this becomes rigid
+RIGID_MATERIALS = (JELLY, METAL)  # solids; the others flow and are softened instead
+FAR = 1.0e30
+FAR_F = wp.constant(FAR)  # the same, inside kernels
+
+
+@dataclass
+class PartChoice:
+    """What happened to one part that needed more substeps than the budget (or, in mode "true",
+    the stiffest part): label ("part 3", or "body" for particles without a part id), material
+    name, particle count, largest E (Pa), substeps per frame it needs, the budget, the choice
+    ("true", "rigid", "held" (rigid and touching fixed particles), "soften") and the factor
+    applied to E (1 true, 0 rigid/held, < 1 softened)."""
+
+    label: str
+    material: str
+    n_particles: int
+    E_pa: float
+    substeps_needed: int
+    budget: int
+    choice: str
+    E_scale: float
+
+    def need(self) -> str:
+        """'part 3 (metal, 1,204 particles): E 7e+10 Pa needs 31,008 substeps/frame, budget 2,000'."""
+        return (f"{self.label} ({self.material}, {self.n_particles:,} particles): E {self.E_pa:.3g} Pa needs "
+                f"{self.substeps_needed:,} substeps/frame, budget {self.budget:,}")
+
+    def line(self) -> str:
+        """The printed line: need() + ' → rigid' (or the other choice)."""
+        what = {"true": "true stiffness", "rigid": "rigid", "held": "rigid, held in place (touches fixed particles)",
+                "soften": f"softened to {self.E_scale:.2g}×E"}[self.choice]
+        return f"{self.need()} → {what}"
+
+
+@dataclass
+class StiffPlan:
+    """plan_stiff_parts's answer, per particle in the caller's order: E_scale (N,) (0 for rigid
+    and held particles), body (N,) int32 rigid-body index or −1, held (N,) bool (parts that touch
+    fixed particles: held as a whole), and the per-part choices."""
+
+    E_scale: np.ndarray
+    body: np.ndarray
+    held: np.ndarray
+    choices: list[PartChoice]
+
+    @property
+    def n_bodies(self) -> int:
+        return int(self.body.max()) + 1 if len(self.body) else 0
+
+
+def substeps_needed(wave_speed_mps: np.ndarray, frame_dt_s: float, cfl: float, dx_m: float) -> np.ndarray:
+    """Substeps per frame (int64 per particle) for a wave of speed c to cross ≤ cfl·dx per substep."""
+    return np.ceil(frame_dt_s * np.asarray(wave_speed_mps, np.float64) / (cfl * dx_m) - 1e-9).astype(np.int64)
+
+
+def plan_stiff_parts(mode: str, x: np.ndarray, part_id: np.ndarray, material_id: np.ndarray,
+                     E_pa: np.ndarray, wave_speed_mps: np.ndarray, scale_now: np.ndarray, moving: np.ndarray,
+                     fixed: np.ndarray, frame_dt_s: float, cfl: float, dx_m: float, budget: int,
+                     origin: np.ndarray, allow_rigid: bool = True) -> StiffPlan:
+    """Decide, per part, what to do with moving particles whose current wave speed
+    (wave_speed·√scale_now) needs more than `budget` substeps per frame (see the module doc).
+
+    Parts are split by part_id and then into pieces connected through occupied grid cells (two
+    separate blocks with no part id are two bodies). `allow_rigid` False (bodies were already
+    made earlier in the run) softens instead. Raises InputError in mode "true"."""
+    if mode not in STIFF_PART_MODES:
+        raise InputError(f"solver.stiff_parts must be one of {', '.join(STIFF_PART_MODES)}, got {mode!r}", "scene")
+    n = len(x)
+    c_now = np.asarray(wave_speed_mps, np.float64) * np.sqrt(scale_now)
+    need = substeps_needed(c_now, frame_dt_s, cfl, dx_m)
+    over = moving & (need > budget)
+    c_allowed = cfl * dx_m * budget / frame_dt_s
+    fit_scale = np.minimum(1.0, (c_allowed / np.maximum(np.asarray(wave_speed_mps, np.float64), 1e-30)) ** 2) * 0.999
+    scale = np.asarray(scale_now, np.float64).copy()
+    body = np.full(n, -1, np.int32)
+    held = np.zeros(n, bool)
+    choices: list[PartChoice] = []
+    n_bodies = 0
+    for pid in np.unique(part_id[over]):
+        in_part = part_id == pid
+        part_over = over & in_part
+        mats = material_id[part_over]
+        mat = int(np.bincount(mats).argmax())
+        label = f"part {int(pid)}" if pid >= 0 else "body"
+        choice = PartChoice(label, MATERIAL_NAMES[mat], int(part_over.sum()), float(E_pa[part_over].max()),
+                            int(need[part_over].max()), int(budget), "soften", 1.0)
+        if mode == "true":
+            raise InputError(f"{choice.need()} but solver.stiff_parts is \"true\": raise "
+                             f"solver.max_substeps_per_frame to {choice.substeps_needed} or choose \"rigid\"", "scene")
+        solid = part_over & np.isin(material_id, RIGID_MATERIALS)
+        too_soft_to_fit = fit_scale[part_over].min() < AUTO_SOFTEN_LIMIT
+        rigid = allow_rigid and solid.any() and (mode == "rigid" or (mode == "auto" and too_soft_to_fit))
+        if rigid:
+            labels, touches_fixed = _pieces(x, solid, fixed & in_part, dx_m, origin)
+            for k in range(1, int(labels.max()) + 1):
+                piece = labels == k
+                if touches_fixed[k]:
+                    held |= piece
+                else:
+                    body[piece] = n_bodies
+                    n_bodies += 1
+            scale[solid] = 0.0
+            choice.choice = "held" if held[solid].all() else "rigid"
+            choice.E_scale = 0.0
+            rest = part_over & ~solid  # flowing materials of the same part
+        else:
+            rest = part_over
+        if rest.any():
+            scale[rest] = np.minimum(scale[rest], fit_scale[rest])
+            if not rigid:
+                choice.E_scale = float(scale[rest].min())
+        choices.append(choice)
+    return StiffPlan(scale, body, held, choices)
+
+
+def _pieces(x: np.ndarray, mask: np.ndarray, fixed: np.ndarray, dx_m: float,
+            origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Label (N,) int (0 = not in mask, 1.. = piece) the particles of `mask` by connected occupied
+    grid cells (26-neighbourhood), and say per piece whether a `fixed` particle shares or touches
+    its cells (bool array indexed by label)."""
+    from scipy import ndimage
+
+    both = mask | fixed
+    cells = np.floor((x[both] - origin) / dx_m).astype(np.int64)
+    lo = cells.min(0)
+    cells -= lo - 1
+    occupied = np.zeros(cells.max(0) + 2, bool)
+    occupied[tuple(cells.T)] = True
+    labels_grid, _ = ndimage.label(occupied, structure=np.ones((3, 3, 3), bool))
+    cell_label = labels_grid[tuple(cells.T)]
+    labels = np.zeros(len(x), np.int64)
+    labels[both] = cell_label
+    labels[~mask] = 0
+    # renumber the pieces that hold masked particles 1..K
+    used = np.unique(labels[mask])
+    remap = np.zeros(int(labels_grid.max()) + 1, np.int64)
+    remap[used] = np.arange(1, len(used) + 1)
+    touches = np.zeros(len(used) + 1, bool)
+    fixed_labels = np.unique(labels_grid[tuple(cells[fixed[both]].T)]) if fixed.any() else np.zeros(0, np.int64)
+    touches[remap[np.intersect1d(fixed_labels, used)]] = True
+    return remap[labels], touches
+
+
+# ---------------------------------------------------------------------------------------- kernels
+@wp.kernel
+def rigid_gather(x: wp.array(dtype=wp.vec3), mass: wp.array(dtype=float), order: wp.array(dtype=wp.int32),
+                 body_of: wp.array(dtype=wp.int32), com: wp.array(dtype=wp.vec3), grid: GridInfo,
+                 grid_velocity: wp.array3d(dtype=wp.vec3), momentum: wp.array(dtype=wp.vec3),
+                 ang_momentum: wp.array(dtype=wp.vec3), lo: wp.array2d(dtype=float), hi: wp.array2d(dtype=float)):
+    """Momentum in: each rigid particle adds m·v(grid at x) and m·r×v to its body (r from the COM),
+    and its position to the body's extents."""
+    p = wp.tid()
+    b = body_of[order[p]]
+    if b < 0:
+        return
+    xp = x[p]
+    base, fx = stencil_of(xp, grid)
+    wx = bspline_weights(fx[0])
+    wy = bspline_weights(fx[1])
+    wz = bspline_weights(fx[2])
+    gv = wp.vec3(0.0)
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                gv = gv + (wx[i] * wy[j] * wz[k]) * grid_velocity[base[0] + i, base[1] + j, base[2] + k]
+    m = mass[p]
+    wp.atomic_add(momentum, b, m * gv)
+    wp.atomic_add(ang_momentum, b, m * wp.cross(xp - com[b], gv))
+    for d in range(3):
+        wp.atomic_min(lo, b, d, xp[d])
+        wp.atomic_max(hi, b, d, xp[d])
+
+
+@wp.kernel
+def rigid_solve(body_mass: wp.array(dtype=float), inertia_inv0: wp.array(dtype=wp.mat33),
+                momentum: wp.array(dtype=wp.vec3), ang_momentum: wp.array(dtype=wp.vec3),
+                lo: wp.array2d(dtype=float), hi: wp.array2d(dtype=float), com: wp.array(dtype=wp.vec3),
+                rot: wp.array(dtype=wp.quat), vel: wp.array(dtype=wp.vec3), omega: wp.array(dtype=wp.vec3),
+                wall_lo: wp.vec3, wall_hi: wp.vec3, friction: float, dt: float):
+    """Per body: v = P/M, ω = (R I₀⁻¹ Rᵀ) L; the floor and walls stop the body as a whole (no
+    approach past wall_lo/wall_hi, Coulomb friction against the floor); advance COM and rotation
+    (exact axis-angle step); clear the accumulators for the next substep."""
+    b = wp.tid()
+    R = wp.quat_to_matrix(rot[b])
+    v = momentum[b] / body_mass[b]
+    w = (R * inertia_inv0[b] * wp.transpose(R)) * ang_momentum[b]
+    dvn = float(0.0)
+    for d in range(3):
+        # the fastest it may approach a wall: up to touching it, not at all once at or past it
+        if v[d] < 0.0:
+            new = wp.max(v[d], wp.min((wall_lo[d] - lo[b, d]) / dt, 0.0))
+            if d == 2:
+                dvn = new - v[d]
+            v[d] = new
+        if v[d] > 0.0:
+            v[d] = wp.min(v[d], wp.max((wall_hi[d] - hi[b, d]) / dt, 0.0))
+    if dvn > 0.0:  # floor contact: Coulomb friction on the sliding velocity
+        vt = wp.vec3(v[0], v[1], 0.0)
+        st = wp.length(vt)
+        if st <= friction * dvn:
+            v = wp.vec3(0.0, 0.0, v[2])
+        else:
+            v = v - vt * (friction * dvn / st)
+    vel[b] = v
+    omega[b] = w
+    com[b] = com[b] + dt * v
+    angle = wp.length(w) * dt
+    if angle > 0.0:
+        rot[b] = wp.normalize(wp.quat_from_axis_angle(wp.normalize(w), angle) * rot[b])
+    momentum[b] = wp.vec3(0.0)
+    ang_momentum[b] = wp.vec3(0.0)
+    for d in range(3):
+        lo[b, d] = FAR_F
+        hi[b, d] = -FAR_F
+
+
+@wp.kernel
+def rigid_scatter(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33),
+                  F: wp.array(dtype=wp.mat33), stress: wp.array(dtype=wp.mat33), order: wp.array(dtype=wp.int32),
+                  body_of: wp.array(dtype=wp.int32), r0: wp.array(dtype=wp.vec3), com: wp.array(dtype=wp.vec3),
+                  rot: wp.array(dtype=wp.quat), vel: wp.array(dtype=wp.vec3), omega: wp.array(dtype=wp.vec3)):
+    """Velocity out: every rigid particle takes its body's motion (x = c + R r₀, v = v_b + ω×r,
+    C = [ω]×, F = R, τ = 0), overwriting what G2P gave it."""
+    p = wp.tid()
+    idx = order[p]
+    b = body_of[idx]
+    if b < 0:
+        return
+    R = wp.quat_to_matrix(rot[b])
+    r = R * r0[idx]
+    w = omega[b]
+    x[p] = com[b] + r
+    v[p] = vel[b] + wp.cross(w, r)
+    C[p] = wp.skew(w)
+    F[p] = R
+    stress[p] = wp.mat33(0.0)
+
+
+# ---------------------------------------------------------------------------------------- bodies
+class RigidBodies:
+    """B rigid bodies made of the particles with body[i] ≥ 0 (caller's order), coupled to the
+    grid of an MPMSolver. Per body on the device: mass (kg), body-frame inverse inertia (1/(kg m²)),
+    COM (m), orientation quaternion, v (m/s), ω (rad/s). Body frame = world frame at creation."""
+
+    def __init__(self, body: np.ndarray, x: np.ndarray, v: np.ndarray, mass: np.ndarray, device: str) -> None:
+        self.device = device
+        self.n_bodies = int(body.max()) + 1
+        B = self.n_bodies
+        x64, v64, m64 = (np.asarray(a, np.float64) for a in (x, v, mass))
+        sel = body >= 0
+        b = body[sel]
+        M = np.bincount(b, m64[sel], minlength=B)
+        com = np.stack([np.bincount(b, m64[sel] * x64[sel, d], minlength=B) for d in range(3)], 1) / M[:, None]
+        r = np.zeros_like(x64)
+        r[sel] = x64[sel] - com[b]
+        # inertia about the COM of the points themselves: the same sums the gather kernel makes
+        # (L = Σ m r×v), so ω = I⁻¹L returns a rigid rotation unchanged; pinv: a body with no
+        # extent along an axis (a line, a single particle) gets no spin about it
+        m_s = m64[sel]
+        rr = r[sel]
+        inertia = np.zeros((B, 3, 3))
+        per = m_s[:, None, None] * (np.einsum("ij,ij->i", rr, rr)[:, None, None] * np.eye(3)
+                                    - rr[:, :, None] * rr[:, None, :])
+        np.add.at(inertia, b, per)
+        P = np.stack([np.bincount(b, m_s * v64[sel, d], minlength=B) for d in range(3)], 1)
+        L = np.zeros((B, 3))
+        np.add.at(L, b, m_s[:, None] * np.cross(rr, v64[sel]))
+        inv = np.linalg.pinv(inertia, rcond=1e-6, hermitian=True)
+        self.mass_kg = M
+        self.inertia0 = inertia
+        d = device
+        self.body_of = wp.array(body.astype(np.int32), dtype=wp.int32, device=d)
+        self.r0 = wp.array(r.astype(np.float32), dtype=wp.vec3, device=d)
+        self.body_mass = wp.array(M.astype(np.float32), dtype=float, device=d)
+        self.inertia_inv0 = wp.array(inv.astype(np.float32), dtype=wp.mat33, device=d)
+        self.com = wp.array(com.astype(np.float32), dtype=wp.vec3, device=d)
+        self.rot = wp.array(np.tile(np.array([0, 0, 0, 1], np.float32), (B, 1)), dtype=wp.quat, device=d)
+        self.vel = wp.array((P / M[:, None]).astype(np.float32), dtype=wp.vec3, device=d)
+        self.omega = wp.array(np.einsum("bij,bj->bi", inv, L).astype(np.float32), dtype=wp.vec3, device=d)
+        self.momentum = wp.zeros(B, dtype=wp.vec3, device=d)
+        self.ang_momentum = wp.zeros(B, dtype=wp.vec3, device=d)
+        self.lo = wp.array(np.full((B, 3), FAR, np.float32), dtype=float, device=d)
+        self.hi = wp.array(np.full((B, 3), -FAR, np.float32), dtype=float, device=d)
+
+    def place(self, x: wp.array, v: wp.array, C: wp.array, F: wp.array, stress: wp.array, order: wp.array) -> None:
+        """Give every rigid particle its body's motion (after creation, and after each G2P)."""
+        wp.launch(rigid_scatter, dim=x.shape[0], device=self.device,
+                  inputs=[x, v, C, F, stress, order, self.body_of, self.r0, self.com, self.rot, self.vel,
+                          self.omega])
+
+    def advance(self, x: wp.array, mass: wp.array, order: wp.array, grid: GridInfo, grid_velocity: wp.array,
+                wall_lo: np.ndarray, wall_hi: np.ndarray, friction: float, dt: float) -> None:
+        """Momentum in from the grid (after the grid update, before G2P) and one rigid step of dt s."""
+        wp.launch(rigid_gather, dim=x.shape[0], device=self.device,
+                  inputs=[x, mass, order, self.body_of, self.com, grid, grid_velocity, self.momentum,
+                          self.ang_momentum, self.lo, self.hi])
+        wp.launch(rigid_solve, dim=self.n_bodies, device=self.device,
+                  inputs=[self.body_mass, self.inertia_inv0, self.momentum, self.ang_momentum, self.lo, self.hi,
+                          self.com, self.rot, self.vel, self.omega, wp.vec3(*wall_lo), wp.vec3(*wall_hi),
+                          float(friction), float(dt)])
+
+    def state(self) -> dict[str, np.ndarray]:
+        """Host copies: com (B,3) m, quaternion (B,4) x,y,z,w, v (B,3) m/s, omega (B,3) rad/s, mass (B,) kg."""
+        return {"com": self.com.numpy().astype(np.float64), "quat": self.rot.numpy().astype(np.float64),
+                "v": self.vel.numpy().astype(np.float64), "omega": self.omega.numpy().astype(np.float64),
+                "mass": self.mass_kg.copy()}
+
+
+def wall_bounds(origin: np.ndarray, dx_m: float, dims: tuple[int, int, int], boundary: int,
+                ground_enabled: bool, ground_height_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """World box (m) a rigid body's particles stay inside: the first and last free grid nodes of
+    the domain, and the ground plane when there is one."""
+    lo = np.asarray(origin, np.float64) + boundary * dx_m
+    hi = np.asarray(origin, np.float64) + (np.asarray(dims) - 1 - boundary) * dx_m
+    if ground_enabled:
+        lo[2] = max(lo[2], ground_height_m)
+    return lo, hi
+
+
+__all__ = ["STIFF_PART_MODES", "AUTO_SOFTEN_LIMIT", "PartChoice", "StiffPlan", "RigidBodies", "plan_stiff_parts",
+           "substeps_needed", "wall_bounds"]

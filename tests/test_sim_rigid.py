@@ -1,0 +1,247 @@
+"""Stiff parts (sim/rigid.py) against answers the solver does not produce: a part too stiff for the
+substep budget moves as a rigid body (relative distances kept to float precision, free fall
+½gt² and the exact symplectic-Euler sum, torque-free spin at constant ω), presses an elastic
+pad as its weight says (static compression vs load·H/(E·A)), comes to rest on the ground, and
+trades momentum with soft material without creating any; the per-part choice is printed with
+the substeps the P-wave speed needs; "soften" and "true" do what they say.
+The soda can: on CUDA at true stiffness it dents and stays dented; on the CPU it runs rigid.
+"""
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import pytest
+
+from pixie_gs.errors import InputError
+from pixie_gs.materials import JELLY, METAL, SAND
+from pixie_gs.sim import MPMSolver, Particles, Scene
+from pixie_gs.sim.can_scene import diameter_along_blow, soda_can
+from test_sim_kernels import device  # noqa: F401  (the per-device fixture)
+
+G = 9.81  # m/s²
+AL = {"E": 7e10, "nu": 0.33, "density": 2700.0, "material_id": METAL}  # aluminium
+
+
+def p_wave(E: float, nu: float, rho: float) -> float:
+    """Textbook P-wave speed (m/s)."""
+    return math.sqrt(E * (1 - nu) / (rho * (1 + nu) * (1 - 2 * nu)))
+
+
+def join(*parts: Particles) -> Particles:
+    fields = ("x", "v", "volume", "E", "nu", "density", "material_id", "yield_stress", "fixed", "part_id")
+    return Particles(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in fields})
+
+
+def pair_distances(x: np.ndarray, k: int = 60) -> np.ndarray:
+    idx = np.linspace(0, len(x) - 1, k).astype(int)
+    return np.linalg.norm(x[idx, None] - x[None, idx], axis=-1)
+
+
+def free_scene(**extra: object) -> Scene:
+    keys = {"domain": {"size_m": 0.8, "grid": 24, "origin": [-0.4, -0.4, -0.55]}, "ground": {"enabled": False},
+            "solver": {"max_substeps_per_frame": 60, "velocity_cfl": 0.1}}
+    keys.update(extra)
+    return Scene.from_dict(keys)
+
+
+# ---------------------------------------------------------------------------------------- rigid motion
+def test_stiff_block_falls_as_a_rigid_body_and_says_why(device, capsys):
+    scene = free_scene()
+    p = Particles.lattice((-0.06, -0.06, 0.1), (0.06, 0.06, 0.2), scene.dx / 2, **AL)
+    sim = MPMSolver(p, scene, device)
+    fall = 0.0  # symplectic Euler, substep by substep: v += g·dt, x += v·dt
+    v = 0.0
+    for _ in range(8):
+        sim.step_frame(1 / 30)
+        dt = (1 / 30) / sim.substeps_last_frame
+        for _ in range(sim.substeps_last_frame):
+            v += G * dt
+            fall += v * dt
+    x = sim.positions()
+    drop = float(p.x[:, 2].mean() - x[:, 2].mean())
+    assert drop == pytest.approx(fall, rel=1e-4)
+    assert drop == pytest.approx(0.5 * G * sim.time_s ** 2, rel=0.02)
+    assert np.abs(pair_distances(x) - pair_distances(p.x)).max() < 1e-6  # float32 precision on 0.2 m
+    assert np.allclose(sim.deformation_gradients(), np.eye(3), atol=1e-4)  # F = R = I up to float noise
+    # the choice, with the substeps the aluminium P-wave needs (c·frame_dt / (cfl·dx))
+    need = math.ceil((1 / 30) * p_wave(7e10, 0.33, 2700.0) / (scene.solver.cfl * scene.dx))
+    (choice,) = sim.stiff_part_choices
+    assert (choice.choice, choice.substeps_needed, choice.budget) == ("rigid", need, 60)
+    assert f"body (metal, {len(p):,} particles): E 7e+10 Pa needs {need:,} substeps/frame, budget 60 → rigid" \
+        in capsys.readouterr().err
+    assert sim.stiffness_scale == 1.0  # nothing softened
+
+
+def test_spinning_rigid_body_keeps_omega_and_turns_by_omega_t(device):
+    scene = free_scene(gravity=[0, 0, 0])
+    p = Particles.lattice((-0.06, -0.06, -0.06), (0.06, 0.06, 0.06), scene.dx / 2, **AL)
+    omega = np.array([0.0, 0.0, 6.0])  # rad/s about z through the centre (a principal axis of the cube)
+    p.v = np.cross(omega, p.x).astype(np.float32)
+    sim = MPMSolver(p, scene, device)
+    for _ in range(6):
+        sim.step_frame(1 / 30)
+    angle = 6.0 * sim.time_s
+    c, s = math.cos(angle), math.sin(angle)
+    rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    # torque-free: the centre of mass drifts at its initial velocity, the body turns about it
+    com = p.x.astype(np.float64).mean(0)
+    expected = com + np.cross(omega, com) * sim.time_s + (p.x - com) @ rot.T
+    assert np.abs(sim.positions() - expected).max() < 1e-5
+    assert sim.rigid.state()["omega"][0] == pytest.approx(omega, abs=1e-4)
+    F = sim.deformation_gradients()  # F = R: the Gaussians' covariances turn with the body
+    assert np.allclose(F, rot, atol=1e-5)
+
+
+def test_rigid_and_soft_block_collide_without_creating_momentum(device):
+    scene = free_scene(gravity=[0, 0, 0])
+    rigid = Particles.lattice((-0.2, -0.05, -0.05), (-0.1, 0.05, 0.05), scene.dx / 2, v=[2.0, 0, 0], **AL)
+    soft = Particles.lattice((-0.06, -0.05, -0.05), (0.04, 0.05, 0.05), scene.dx / 2, E=2e4, nu=0.3,
+                             density=1000.0, material_id=JELLY)
+    both = join(rigid, soft)
+    m = both.mass.astype(np.float64)
+    p0 = (m[:, None] * both.v).sum(0)
+    sim = MPMSolver(both, scene, device)
+    for _ in range(6):
+        sim.step_frame(1 / 60)
+    v = sim.velocities().astype(np.float64)
+    n_r = len(rigid)
+    assert (m[:, None] * v).sum(0) == pytest.approx(p0, abs=1e-4 * np.abs(p0).max())
+    soft_p = (m[n_r:] * v[n_r:, 0]).sum()
+    assert soft_p > 0.2 * p0[0]  # the hit went into the soft block...
+    assert np.abs(pair_distances(sim.positions()[:n_r]) - pair_distances(rigid.x)).max() < 1e-6  # ...not the rigid
+    assert [c.choice for c in sim.stiff_part_choices] == ["rigid"]
+
+
+def test_rigid_block_lands_and_rests_on_the_ground(device):
+    scene = Scene.from_dict({"domain": {"size_m": 0.5, "grid": 20}, "solver": {"max_substeps_per_frame": 30}})
+    p = Particles.lattice((-0.05, -0.05, 0.1), (0.05, 0.05, 0.15), scene.dx / 2, **AL)
+    sim = MPMSolver(p, scene, device)
+    for _ in range(15):  # 0.1 m fall takes 0.14 s; then 0.36 s resting
+        sim.step_frame(1 / 30)
+    z = sim.positions()[:, 2]
+    lowest0 = p.x[:, 2].min() - 0.1  # where its lowest particles sit when touching z = 0
+    assert z.min() >= -1e-6 and z.min() - lowest0 < scene.dx  # on the ground, not sunk, not floating
+    assert np.abs(sim.velocities()).max() < 1e-3
+
+
+# ---------------------------------------------------------------------------------------- choices
+def test_each_part_gets_its_own_choice(device, capsys):
+    """Metal part → rigid; a sand part over budget flows, so it is softened; a jelly part that fits
+    keeps true stiffness and is not mentioned; a stiff part touching fixed particles is held."""
+    scene = free_scene(gravity=[0, 0, -9.81])
+    h = scene.dx / 2
+    metal = Particles.lattice((-0.25, -0.05, 0.0), (-0.15, 0.05, 0.1), h, part_id=1, **AL)
+    sand = Particles.lattice((-0.05, -0.05, 0.0), (0.05, 0.05, 0.1), h, E=5e8, nu=0.3, density=2000.0,
+                             material_id=SAND, part_id=2)
+    jelly = Particles.lattice((0.15, -0.05, 0.0), (0.25, 0.05, 0.1), h, E=1e4, nu=0.3, density=500.0,
+                              material_id=JELLY, part_id=3)
+    bracket = Particles.lattice((-0.05, 0.15, 0.0), (0.05, 0.25, 0.1), h, part_id=4, **AL)
+    bracket.fixed[bracket.x[:, 1] > 0.22] = True  # its far end is held
+    sim = MPMSolver(join(metal, sand, jelly, bracket), scene, device)
+    sim.step_frame(1 / 30)
+    got = {c.label: c.choice for c in sim.stiff_part_choices}
+    assert got == {"part 1": "rigid", "part 2": "soften", "part 4": "held"}
+    err = capsys.readouterr().err
+    assert "part 2 (sand" in err and "→ softened to" in err and "part 3" not in err
+    c_allowed = scene.solver.cfl * scene.dx * 60 / (1 / 30)
+    sand_scale = next(c.E_scale for c in sim.stiff_part_choices if c.label == "part 2")
+    assert p_wave(5e8 * sand_scale, 0.3, 2000.0) <= c_allowed  # softened just enough to fit
+    n1, n2, n3 = len(metal), len(sand), len(jelly)
+    x = sim.positions()
+    assert np.abs(x[n1 + n2 + n3:] - bracket.x).max() == 0.0  # held as a whole
+    assert x[:n1, 2].mean() < metal.x[:, 2].mean()  # the rigid part falls
+
+
+def test_auto_softens_a_part_that_almost_fits_and_soften_mode_keeps_the_old_cap(device):
+    scene = free_scene()
+    p = Particles.lattice((-0.05, -0.05, 0.0), (0.05, 0.05, 0.1), scene.dx / 2, E=2e6, nu=0.3, density=1000.0,
+                          material_id=JELLY)
+    c = p_wave(2e6, 0.3, 1000.0)
+    need = math.ceil((1 / 30) * c / (scene.solver.cfl * scene.dx))
+    assert 60 < need < 60 * math.sqrt(10)  # over budget, but fits when E is lowered by less than 10×
+    sim = MPMSolver(p, scene, device)
+    sim.step_frame(1 / 30)
+    assert [ch.choice for ch in sim.stiff_part_choices] == ["soften"] and sim.rigid is None
+    assert sim.stiffness_scale == pytest.approx(0.999 * (60 / ((1 / 30) * c / (scene.solver.cfl * scene.dx))) ** 2,
+                                                rel=1e-4)
+    stiff = Particles.lattice((-0.05, -0.05, 0.0), (0.05, 0.05, 0.1), scene.dx / 2, **AL)
+    sim = MPMSolver(stiff, free_scene(solver={"max_substeps_per_frame": 60, "stiff_parts": "soften"}), device)
+    sim.step_frame(1 / 30)
+    assert sim.rigid is None and sim.stiffness_scale < 1e-4 and sim.stiff_part_choices[0].choice == "soften"
+
+
+def test_true_mode_refuses_to_change_a_material(device):
+    scene = free_scene(solver={"max_substeps_per_frame": 60, "stiff_parts": "true"})
+    sim = MPMSolver(Particles.lattice((-0.05, -0.05, 0.0), (0.05, 0.05, 0.1), scene.dx / 2, **AL), scene, device)
+    need = math.ceil((1 / 30) * p_wave(7e10, 0.33, 2700.0) / (scene.solver.cfl * scene.dx))
+    with pytest.raises(InputError, match=rf"needs {need:,} substeps/frame, budget 60 but solver.stiff_parts is "
+                                         rf"\"true\": raise solver.max_substeps_per_frame to {need}"):
+        sim.step_frame(1 / 30)
+
+
+def test_stiff_parts_key_is_checked():
+    with pytest.raises(InputError, match="solver.stiff_parts': must be one of auto, rigid, soften, true"):
+        Scene.from_dict({"solver": {"stiff_parts": "jelly"}})
+    assert Scene.from_dict({}).solver.stiff_parts == "auto"
+
+
+# ---------------------------------------------------------------------------------------- soda can
+CAN_BLOW_MPS = 150.0  # speed given to the struck patch of the wall
+
+
+def _cuda_asked() -> bool:
+    return "cuda" in os.environ.get("PIXIE_TEST_DEVICES", "cuda")
+
+
+@pytest.mark.skipif(not _cuda_asked(), reason="PIXIE_TEST_DEVICES leaves CUDA out")
+def test_soda_can_dents_and_stays_dented_at_true_stiffness_on_cuda():
+    import warp as wp
+
+    from pixie_gs.devices import init_warp_quietly
+
+    init_warp_quietly()
+    if not wp.is_cuda_available():
+        pytest.skip("no CUDA device")
+    p, scene, band = soda_can(dx_m=0.002, dv_mps=CAN_BLOW_MPS, stiff_parts="true", budget=100_000)
+    sim = MPMSolver(p, scene, "cuda")
+    d0 = diameter_along_blow(p.x, band)
+    dents = []
+    for _ in range(10):  # 10 ms, one frame each
+        sim.step_frame(1e-3)
+        dents.append(d0 - diameter_along_blow(sim.positions(), band))
+    need = math.ceil(1e-3 * p_wave(7e10, 0.33, 2700.0) / (scene.solver.cfl * scene.dx))
+    assert sim.substeps_last_frame >= need  # true stiffness: the CFL of real aluminium
+    assert sim.stiff_part_choices == [] and sim.rigid is None and sim.stiffness_scale == 1.0
+    dents = np.array(dents)
+    print(f"can at true stiffness: {sim.substeps_last_frame:,} substeps/ms (aluminium needs {need:,}); "
+          f"dent per ms (mm) {np.round(1000 * dents, 2).tolist()}, diameter {1000 * d0:.1f} mm")
+    assert dents[-1] > 0.1 * d0  # dented by more than 10 % of the diameter ...
+    assert dents[-1] > 0.8 * dents.max()  # ... and stays dented (spring-back < 20 % of the dent)
+    assert np.isfinite(sim.deformation_gradients()).all()
+
+
+def test_soda_can_runs_as_a_rigid_body_on_a_cpu_budget(capsys):
+    """The same can with a CPU budget: never softened. Floating free it is one rigid body, its
+    shape kept exactly, moving off with the blow's momentum (Σ m·dv / M); held at its back (as
+    on the GPU) it is held as a whole."""
+    p, scene, band = soda_can(dx_m=0.004, dv_mps=CAN_BLOW_MPS, stiff_parts="auto", budget=200, held_back=False)
+    sim = MPMSolver(p, scene, "cpu")
+    for _ in range(2):
+        sim.step_frame(1e-3)  # it moves off at ~5 m/s: 1 cm, clear of the domain walls
+    assert [c.choice for c in sim.stiff_part_choices] == ["rigid"] and sim.stiffness_scale == 1.0
+    assert "part 0 (metal" in capsys.readouterr().err
+    x = sim.positions()
+    assert np.abs(pair_distances(x) - pair_distances(p.x)).max() < 1e-6
+    assert diameter_along_blow(x, band) == pytest.approx(diameter_along_blow(p.x, band), abs=1e-6)
+    struck = scene.impulses[0].region.contains(p.x)
+    m = p.mass.astype(np.float64)
+    v_expected = CAN_BLOW_MPS * m[struck].sum() / m.sum()
+    v_mean = (m[:, None] * sim.velocities()).sum(0) / m.sum()
+    assert v_mean == pytest.approx([v_expected, 0, 0], abs=1e-3 * v_expected)
+    p, scene, band = soda_can(dx_m=0.004, dv_mps=CAN_BLOW_MPS, stiff_parts="auto", budget=200)
+    sim = MPMSolver(p, scene, "cpu")
+    sim.step_frame(1e-3)
+    assert [c.choice for c in sim.stiff_part_choices] == ["held"] and sim.stiffness_scale == 1.0
+    assert np.abs(sim.positions() - p.x).max() == 0.0
