@@ -16,7 +16,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--device", default="cuda")
     ap.add_argument("--dx-mm", default="2,1", help="grid spacings (mm); the wall is one cell thick")
-    ap.add_argument("--speeds", default="50,100,200", help="blow speeds (m/s) given to the struck patch")
+    ap.add_argument("--speeds", default="100,200,400", help="blow speeds (m/s) given to the struck patch")
     ap.add_argument("--ms", type=int, default=10, help="simulated milliseconds (one frame each)")
     args = ap.parse_args()
     from pixie_gs.sim import MPMSolver

@@ -11,16 +11,17 @@ visco-plastic parts are never made rigid (they flow): they are softened. Every c
 printed line, e.g. "part 3 (metal, 1,204 particles): E 7e+10 Pa needs 31,008 substeps/frame,
 budget 2,000 → rigid".
 
-A rigid body is coupled to the grid (`RigidBodies`): its particles scatter mass and momentum in
-P2G like any particle, so soft material, the ground and walls act on it through the shared grid
-nodes; after the grid update the grid velocities at its particles are summed into the body's
-linear and angular momentum (momentum in), the body moves as one (v, ω; COM and orientation
-quaternion), and its particles get position c + R·r₀, velocity v + ω×r, APIC matrix C = [ω]×,
-F = R and no stress (velocity out: the next P2G hands the rigid motion back to the grid).
-Relative distances inside a body are therefore kept to float precision. The ground and the
-domain walls also stop a body as a whole (its lowest point cannot pass the floor; Coulomb
-friction on its sliding speed), which the node-wise grid boundary alone would only do for the
-fraction of its mass that sits on boundary nodes.
+A rigid body is coupled to the grid (`RigidBodies`) without being scattered into it (its
+particles carry zero mass in P2G, so the grid holds only soft material). Each substep, after the
+grid update, the body and the soft material on the grid nodes its particles cover take one
+common rigid motion with their summed momentum and angular momentum (momentum in from the nodes
+it covers: a perfectly inelastic, momentum-conserving exchange in which the body's full mass and
+inertia answer every contact); those nodes then move with the body (velocity out: G2P hands the
+rigid motion to the soft particles there). The body's particles get position c + R·r₀, velocity
+v + ω×r, APIC matrix C = [ω]×, F = R and no stress, so relative distances inside a body are kept
+to float precision and the Gaussians' covariances turn with it. Impulses given to its particles
+reach the body as momentum; gravity and viscous damping act on it; the ground and the domain
+walls stop it as a whole (its extreme particles cannot pass them; Coulomb friction on the floor).
 """
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ import warp as wp
 
 from ..errors import InputError
 from ..materials import JELLY, MATERIAL_NAMES, METAL
-from .kernels import GridInfo, bspline_weights, stencil_of
+from .kernels import GridInfo, stencil_of
 from .scene import STIFF_PART_MODES
 
 AUTO_SOFTEN_LIMIT = 0.1  # "auto": a solid part that would need E × less than this becomes rigid
@@ -179,48 +180,103 @@ def _pieces(x: np.ndarray, mask: np.ndarray, fixed: np.ndarray, dx_m: float,
 
 
 # ---------------------------------------------------------------------------------------- kernels
+@wp.func
+def body_offset(rot: wp.quat, r0: wp.vec3):
+    """r = R·r₀: a rigid particle's offset from its body's COM (one expression everywhere, so the
+    velocity set by rigid_scatter and the one rigid_particles expects agree bit for bit)."""
+    return wp.quat_to_matrix(rot) * r0
+
+
 @wp.kernel
-def rigid_gather(x: wp.array(dtype=wp.vec3), mass: wp.array(dtype=float), order: wp.array(dtype=wp.int32),
-                 body_of: wp.array(dtype=wp.int32), com: wp.array(dtype=wp.vec3), grid: GridInfo,
-                 grid_velocity: wp.array3d(dtype=wp.vec3), momentum: wp.array(dtype=wp.vec3),
-                 ang_momentum: wp.array(dtype=wp.vec3), lo: wp.array2d(dtype=float), hi: wp.array2d(dtype=float)):
-    """Momentum in: each rigid particle adds m·v(grid at x) and m·r×v to its body (r from the COM),
-    and its position to the body's extents."""
+def rigid_particles(v: wp.array(dtype=wp.vec3), x: wp.array(dtype=wp.vec3), order: wp.array(dtype=wp.int32),
+                    body_of: wp.array(dtype=wp.int32), r0: wp.array(dtype=wp.vec3), mass: wp.array(dtype=float),
+                    rot: wp.array(dtype=wp.quat), vel: wp.array(dtype=wp.vec3), omega: wp.array(dtype=wp.vec3),
+                    grid: GridInfo, node_body: wp.array3d(dtype=wp.int32), kick: wp.array(dtype=wp.vec3),
+                    kick_ang: wp.array(dtype=wp.vec3), lo: wp.array2d(dtype=float), hi: wp.array2d(dtype=float)):
+    """Per rigid particle: tag the 27 grid nodes it covers with its body (id + 1); add any change
+    of its velocity since the last rigid_scatter (an impulse) to its body as momentum m·Δv and
+    angular momentum r×m·Δv; widen the body's extents."""
     p = wp.tid()
-    b = body_of[order[p]]
+    idx = order[p]
+    b = body_of[idx]
     if b < 0:
         return
     xp = x[p]
     base, fx = stencil_of(xp, grid)
-    wx = bspline_weights(fx[0])
-    wy = bspline_weights(fx[1])
-    wz = bspline_weights(fx[2])
-    gv = wp.vec3(0.0)
     for i in range(3):
         for j in range(3):
             for k in range(3):
-                gv = gv + (wx[i] * wy[j] * wz[k]) * grid_velocity[base[0] + i, base[1] + j, base[2] + k]
-    m = mass[p]
-    wp.atomic_add(momentum, b, m * gv)
-    wp.atomic_add(ang_momentum, b, m * wp.cross(xp - com[b], gv))
+                wp.atomic_max(node_body, base[0] + i, base[1] + j, base[2] + k, b + 1)
+    r = body_offset(rot[b], r0[idx])
+    dmv = mass[idx] * (v[p] - (vel[b] + wp.cross(omega[b], r)))
+    if wp.length(dmv) > 0.0:
+        wp.atomic_add(kick, b, dmv)
+        wp.atomic_add(kick_ang, b, wp.cross(r, dmv))
     for d in range(3):
         wp.atomic_min(lo, b, d, xp[d])
         wp.atomic_max(hi, b, d, xp[d])
 
 
 @wp.kernel
-def rigid_solve(body_mass: wp.array(dtype=float), inertia_inv0: wp.array(dtype=wp.mat33),
-                momentum: wp.array(dtype=wp.vec3), ang_momentum: wp.array(dtype=wp.vec3),
+def rigid_node_sums(node_body: wp.array3d(dtype=wp.int32), grid_mass: wp.array3d(dtype=float),
+                    grid_velocity: wp.array3d(dtype=wp.vec3), grid: GridInfo, box_lo: wp.vec3i,
+                    com: wp.array(dtype=wp.vec3), node_mass: wp.array(dtype=float),
+                    node_moment: wp.array(dtype=wp.vec3), node_momentum: wp.array(dtype=wp.vec3),
+                    node_ang: wp.array(dtype=wp.vec3), node_inertia: wp.array(dtype=wp.mat33)):
+    """Momentum in: per grid node a body covers that holds soft material, add the node's mass m,
+    m·r, m·v, m·r×v and m(|r|²I − r rᵀ) to the body (r from the body's COM)."""
+    a, bb, c = wp.tid()
+    i = a + box_lo[0]
+    j = bb + box_lo[1]
+    k = c + box_lo[2]
+    b = node_body[i, j, k] - 1
+    m = grid_mass[i, j, k]
+    if b < 0 or m <= 0.0:
+        return
+    r = grid.origin + wp.vec3(float(i), float(j), float(k)) * grid.dx - com[b]
+    gv = grid_velocity[i, j, k]
+    wp.atomic_add(node_mass, b, m)
+    wp.atomic_add(node_moment, b, m * r)
+    wp.atomic_add(node_momentum, b, m * gv)
+    wp.atomic_add(node_ang, b, m * wp.cross(r, gv))
+    wp.atomic_add(node_inertia, b, m * (wp.dot(r, r) * wp.identity(n=3, dtype=float) - wp.outer(r, r)))
+
+
+@wp.kernel
+def rigid_solve(body_mass: wp.array(dtype=float), inertia0: wp.array(dtype=wp.mat33),
+                inertia_inv0: wp.array(dtype=wp.mat33),
+                kick: wp.array(dtype=wp.vec3), kick_ang: wp.array(dtype=wp.vec3), node_mass: wp.array(dtype=float),
+                node_moment: wp.array(dtype=wp.vec3), node_momentum: wp.array(dtype=wp.vec3),
+                node_ang: wp.array(dtype=wp.vec3), node_inertia: wp.array(dtype=wp.mat33),
                 lo: wp.array2d(dtype=float), hi: wp.array2d(dtype=float), com: wp.array(dtype=wp.vec3),
-                rot: wp.array(dtype=wp.quat), vel: wp.array(dtype=wp.vec3), omega: wp.array(dtype=wp.vec3),
-                wall_lo: wp.vec3, wall_hi: wp.vec3, friction: float, dt: float):
-    """Per body: v = P/M, ω = (R I₀⁻¹ Rᵀ) L; the floor and walls stop the body as a whole (no
-    approach past wall_lo/wall_hi, Coulomb friction against the floor); advance COM and rotation
-    (exact axis-angle step); clear the accumulators for the next substep."""
+                pivot: wp.array(dtype=wp.vec3), rot: wp.array(dtype=wp.quat), vel: wp.array(dtype=wp.vec3),
+                omega: wp.array(dtype=wp.vec3), gravity: wp.vec3, damping: float, wall_lo: wp.vec3,
+                wall_hi: wp.vec3, friction: float, dt: float):
+    """Per body: impulses, gravity and damping on (v, ω); then the body and the soft material on
+    the nodes it covers take one common rigid motion (v', ω') with their summed momentum and
+    angular momentum (a perfectly inelastic, momentum-conserving exchange: the body's full mass
+    and inertia answer every contact); the floor and walls stop it as a whole (Coulomb friction
+    on the floor); then advance COM and rotation (exact axis-angle step) and clear the sums."""
     b = wp.tid()
     R = wp.quat_to_matrix(rot[b])
-    v = momentum[b] / body_mass[b]
-    w = (R * inertia_inv0[b] * wp.transpose(R)) * ang_momentum[b]
+    Ib = R * inertia0[b] * wp.transpose(R)
+    M = body_mass[b]
+    eye = wp.identity(n=3, dtype=float)
+    Ib_inv = R * inertia_inv0[b] * wp.transpose(R)  # pseudo-inverse: no spin about an axis without extent
+    v = vel[b] + kick[b] / M
+    w = omega[b] + Ib_inv * kick_ang[b]
+    decay = wp.exp(-damping * dt)
+    v = (v + dt * gravity) * decay
+    w = w * decay
+    if node_mass[b] > 0.0:  # soft material on the nodes it covers: one common rigid motion
+        Mt = M + node_mass[b]
+        S = node_moment[b]
+        P = M * v + node_momentum[b]
+        L = Ib * w + node_ang[b]
+        A = Ib + node_inertia[b] + wp.skew(S) * wp.skew(S) / Mt  # inertia of both about their common COM
+        reg = 1.0e-7 * (A[0, 0] + A[1, 1] + A[2, 2]) + 1.0e-30
+        w = wp.inverse(A + reg * eye) * (L - wp.cross(S, P) / Mt)
+        v = (P - wp.cross(w, S)) / Mt
     dvn = float(0.0)
     for d in range(3):
         # the fastest it may approach a wall: up to touching it, not at all once at or past it
@@ -240,15 +296,40 @@ def rigid_solve(body_mass: wp.array(dtype=float), inertia_inv0: wp.array(dtype=w
             v = v - vt * (friction * dvn / st)
     vel[b] = v
     omega[b] = w
+    pivot[b] = com[b]
     com[b] = com[b] + dt * v
     angle = wp.length(w) * dt
     if angle > 0.0:
         rot[b] = wp.normalize(wp.quat_from_axis_angle(wp.normalize(w), angle) * rot[b])
-    momentum[b] = wp.vec3(0.0)
-    ang_momentum[b] = wp.vec3(0.0)
+    kick[b] = wp.vec3(0.0)
+    kick_ang[b] = wp.vec3(0.0)
+    node_mass[b] = 0.0
+    node_moment[b] = wp.vec3(0.0)
+    node_momentum[b] = wp.vec3(0.0)
+    node_ang[b] = wp.vec3(0.0)
+    node_inertia[b] = wp.mat33(0.0)
     for d in range(3):
         lo[b, d] = FAR_F
         hi[b, d] = -FAR_F
+
+
+@wp.kernel
+def rigid_set_nodes(node_body: wp.array3d(dtype=wp.int32), grid_mass: wp.array3d(dtype=float),
+                    grid_velocity: wp.array3d(dtype=wp.vec3), grid: GridInfo, box_lo: wp.vec3i,
+                    pivot: wp.array(dtype=wp.vec3), vel: wp.array(dtype=wp.vec3), omega: wp.array(dtype=wp.vec3)):
+    """Velocity out: nodes a body covers move with it (v' + ω'×r) — the soft material there
+    sticks to the body, as it would to another MPM body; clears the node tags."""
+    a, bb, c = wp.tid()
+    i = a + box_lo[0]
+    j = bb + box_lo[1]
+    k = c + box_lo[2]
+    b = node_body[i, j, k] - 1
+    if b < 0:
+        return
+    node_body[i, j, k] = 0
+    if grid_mass[i, j, k] > 0.0:
+        r = grid.origin + wp.vec3(float(i), float(j), float(k)) * grid.dx - pivot[b]
+        grid_velocity[i, j, k] = vel[b] + wp.cross(omega[b], r)
 
 
 @wp.kernel
@@ -256,32 +337,38 @@ def rigid_scatter(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.
                   F: wp.array(dtype=wp.mat33), stress: wp.array(dtype=wp.mat33), order: wp.array(dtype=wp.int32),
                   body_of: wp.array(dtype=wp.int32), r0: wp.array(dtype=wp.vec3), com: wp.array(dtype=wp.vec3),
                   rot: wp.array(dtype=wp.quat), vel: wp.array(dtype=wp.vec3), omega: wp.array(dtype=wp.vec3)):
-    """Velocity out: every rigid particle takes its body's motion (x = c + R r₀, v = v_b + ω×r,
-    C = [ω]×, F = R, τ = 0), overwriting what G2P gave it."""
+    """Every rigid particle takes its body's motion (x = c + R r₀, v = v_b + ω×r, C = [ω]×,
+    F = R, τ = 0), overwriting what G2P gave it."""
     p = wp.tid()
     idx = order[p]
     b = body_of[idx]
     if b < 0:
         return
-    R = wp.quat_to_matrix(rot[b])
-    r = R * r0[idx]
+    r = body_offset(rot[b], r0[idx])
     w = omega[b]
     x[p] = com[b] + r
     v[p] = vel[b] + wp.cross(w, r)
     C[p] = wp.skew(w)
-    F[p] = R
+    F[p] = wp.quat_to_matrix(rot[b])
     stress[p] = wp.mat33(0.0)
 
 
 # ---------------------------------------------------------------------------------------- bodies
 class RigidBodies:
     """B rigid bodies made of the particles with body[i] ≥ 0 (caller's order), coupled to the
-    grid of an MPMSolver. Per body on the device: mass (kg), body-frame inverse inertia (1/(kg m²)),
-    COM (m), orientation quaternion, v (m/s), ω (rad/s). Body frame = world frame at creation."""
+    grid of an MPMSolver whose device mass array holds 0 for them (they are not scattered: the
+    grid carries only soft material, and each body exchanges momentum with the nodes it covers).
+    Per body on the device: mass (kg), body-frame inertia (kg m²), COM (m), orientation
+    quaternion, v (m/s), ω (rad/s). Body frame = world frame at creation. Gravity and viscous
+    damping act on the bodies; wind and air drag do not. Two rigid bodies do not collide with
+    each other (a node covered by both belongs to one)."""
 
-    def __init__(self, body: np.ndarray, x: np.ndarray, v: np.ndarray, mass: np.ndarray, device: str) -> None:
+    def __init__(self, body: np.ndarray, x: np.ndarray, v: np.ndarray, mass: np.ndarray, dims: tuple[int, int, int],
+                 gravity: tuple[float, float, float], damping: float, device: str) -> None:
         self.device = device
         self.n_bodies = int(body.max()) + 1
+        self.gravity = wp.vec3(*gravity)
+        self.damping = float(damping)
         B = self.n_bodies
         x64, v64, m64 = (np.asarray(a, np.float64) for a in (x, v, mass))
         sel = body >= 0
@@ -290,9 +377,6 @@ class RigidBodies:
         com = np.stack([np.bincount(b, m64[sel] * x64[sel, d], minlength=B) for d in range(3)], 1) / M[:, None]
         r = np.zeros_like(x64)
         r[sel] = x64[sel] - com[b]
-        # inertia about the COM of the points themselves: the same sums the gather kernel makes
-        # (L = Σ m r×v), so ω = I⁻¹L returns a rigid rotation unchanged; pinv: a body with no
-        # extent along an axis (a line, a single particle) gets no spin about it
         m_s = m64[sel]
         rr = r[sel]
         inertia = np.zeros((B, 3, 3))
@@ -302,22 +386,32 @@ class RigidBodies:
         P = np.stack([np.bincount(b, m_s * v64[sel, d], minlength=B) for d in range(3)], 1)
         L = np.zeros((B, 3))
         np.add.at(L, b, m_s[:, None] * np.cross(rr, v64[sel]))
-        inv = np.linalg.pinv(inertia, rcond=1e-6, hermitian=True)
+        inv = np.linalg.pinv(inertia, rcond=1e-6, hermitian=True)  # no spin about an axis it has no extent along
         self.mass_kg = M
         self.inertia0 = inertia
         d = device
         self.body_of = wp.array(body.astype(np.int32), dtype=wp.int32, device=d)
         self.r0 = wp.array(r.astype(np.float32), dtype=wp.vec3, device=d)
+        self.particle_mass = wp.array(m64.astype(np.float32), dtype=float, device=d)
         self.body_mass = wp.array(M.astype(np.float32), dtype=float, device=d)
+        self.inertia0_wp = wp.array(inertia.astype(np.float32), dtype=wp.mat33, device=d)
         self.inertia_inv0 = wp.array(inv.astype(np.float32), dtype=wp.mat33, device=d)
         self.com = wp.array(com.astype(np.float32), dtype=wp.vec3, device=d)
+        self.pivot = wp.array(com.astype(np.float32), dtype=wp.vec3, device=d)
         self.rot = wp.array(np.tile(np.array([0, 0, 0, 1], np.float32), (B, 1)), dtype=wp.quat, device=d)
         self.vel = wp.array((P / M[:, None]).astype(np.float32), dtype=wp.vec3, device=d)
         self.omega = wp.array(np.einsum("bij,bj->bi", inv, L).astype(np.float32), dtype=wp.vec3, device=d)
-        self.momentum = wp.zeros(B, dtype=wp.vec3, device=d)
-        self.ang_momentum = wp.zeros(B, dtype=wp.vec3, device=d)
+        self.kick = wp.zeros(B, dtype=wp.vec3, device=d)
+        self.kick_ang = wp.zeros(B, dtype=wp.vec3, device=d)
+        self.node_mass = wp.zeros(B, dtype=float, device=d)
+        self.node_moment = wp.zeros(B, dtype=wp.vec3, device=d)
+        self.node_momentum = wp.zeros(B, dtype=wp.vec3, device=d)
+        self.node_ang = wp.zeros(B, dtype=wp.vec3, device=d)
+        self.node_inertia = wp.zeros(B, dtype=wp.mat33, device=d)
         self.lo = wp.array(np.full((B, 3), FAR, np.float32), dtype=float, device=d)
         self.hi = wp.array(np.full((B, 3), -FAR, np.float32), dtype=float, device=d)
+        self.node_body = wp.zeros(dims, dtype=wp.int32, device=d)
+        self.grid_mass = wp.zeros(dims, dtype=float, device=d)  # the soft material's node masses, kept for advance()
 
     def place(self, x: wp.array, v: wp.array, C: wp.array, F: wp.array, stress: wp.array, order: wp.array) -> None:
         """Give every rigid particle its body's motion (after creation, and after each G2P)."""
@@ -325,16 +419,30 @@ class RigidBodies:
                   inputs=[x, v, C, F, stress, order, self.body_of, self.r0, self.com, self.rot, self.vel,
                           self.omega])
 
-    def advance(self, x: wp.array, mass: wp.array, order: wp.array, grid: GridInfo, grid_velocity: wp.array,
-                wall_lo: np.ndarray, wall_hi: np.ndarray, friction: float, dt: float) -> None:
-        """Momentum in from the grid (after the grid update, before G2P) and one rigid step of dt s."""
-        wp.launch(rigid_gather, dim=x.shape[0], device=self.device,
-                  inputs=[x, mass, order, self.body_of, self.com, grid, grid_velocity, self.momentum,
-                          self.ang_momentum, self.lo, self.hi])
+    def before_grid(self, x: wp.array, v: wp.array, order: wp.array, grid: GridInfo, grid_mass: wp.array) -> None:
+        """After P2G, before the grid update (which clears the node masses): tag the nodes the
+        bodies cover, collect impulses given to rigid particles, keep the node masses."""
+        wp.launch(rigid_particles, dim=x.shape[0], device=self.device,
+                  inputs=[v, x, order, self.body_of, self.r0, self.particle_mass, self.rot, self.vel, self.omega, grid,
+                          self.node_body, self.kick, self.kick_ang, self.lo, self.hi])
+        wp.copy(self.grid_mass, grid_mass)
+
+    def advance(self, grid: GridInfo, grid_velocity: wp.array, box_lo: tuple[int, int, int],
+                box_shape: tuple[int, int, int], wall_lo: np.ndarray, wall_hi: np.ndarray, friction: float,
+                dt: float) -> None:
+        """After the grid update: momentum in from the covered nodes, one rigid step of dt s,
+        velocity out to those nodes (G2P then carries it to the soft particles there)."""
+        lo3 = wp.vec3i(*box_lo)
+        wp.launch(rigid_node_sums, dim=box_shape, device=self.device,
+                  inputs=[self.node_body, self.grid_mass, grid_velocity, grid, lo3, self.com, self.node_mass,
+                          self.node_moment, self.node_momentum, self.node_ang, self.node_inertia])
         wp.launch(rigid_solve, dim=self.n_bodies, device=self.device,
-                  inputs=[self.body_mass, self.inertia_inv0, self.momentum, self.ang_momentum, self.lo, self.hi,
-                          self.com, self.rot, self.vel, self.omega, wp.vec3(*wall_lo), wp.vec3(*wall_hi),
-                          float(friction), float(dt)])
+                  inputs=[self.body_mass, self.inertia0_wp, self.inertia_inv0, self.kick, self.kick_ang, self.node_mass, self.node_moment,
+                          self.node_momentum, self.node_ang, self.node_inertia, self.lo, self.hi, self.com, self.pivot,
+                          self.rot, self.vel, self.omega, self.gravity, self.damping, wp.vec3(*wall_lo),
+                          wp.vec3(*wall_hi), float(friction), float(dt)])
+        wp.launch(rigid_set_nodes, dim=box_shape, device=self.device,
+                  inputs=[self.node_body, self.grid_mass, grid_velocity, grid, lo3, self.pivot, self.vel, self.omega])
 
     def state(self) -> dict[str, np.ndarray]:
         """Host copies: com (B,3) m, quaternion (B,4) x,y,z,w, v (B,3) m/s, omega (B,3) rad/s, mass (B,) kg."""

@@ -403,9 +403,12 @@ class MPMSolver:
         if plan.held.any():
             self._hold(plan.held)
         if plan.n_bodies:
-            self.rigid = RigidBodies(plan.body, self.positions(), self.velocities(), self._mass_host, self.device)
-            self.rigid.place(self.x, self.v, self.C, self.F, self.stress, self.order)
             sc = self.scene
+            self.rigid = RigidBodies(plan.body, self.positions(), self.velocities(), self._mass_host, self.dims,
+                                     sc.gravity, sc.damping, self.device)
+            self.rigid.place(self.x, self.v, self.C, self.F, self.stress, self.order)
+            # rigid particles are not scattered: the grid carries the soft material only
+            self.mass.assign(self._to_slots(np.where(plan.body >= 0, 0.0, self._mass_host).astype(np.float32)))
             self._rigid_walls = (*wall_bounds(self.origin, self.dx, self.dims, BOUNDARY_CELLS, sc.ground.enabled,
                                               sc.ground.height_m), sc.ground.friction if sc.ground.enabled else 0.0)
         self._set_stiffness(scale)
@@ -514,11 +517,13 @@ class MPMSolver:
         self._grid.set_param_by_name("box_lo", wp.vec3i(*box_lo))
         self._grid.set_param_by_name("dt", dt)
         self._grid.set_param_by_name("time_s", t)
+        if self.rigid is not None:  # nodes the bodies cover, impulses, node masses (sim/rigid.py)
+            self.rigid.before_grid(self.x, self.v, self.order, self.grid_info, self.grid_mass)
         self._grid.launch()
         if timer is not None:
             timer.mark("grid")
         if self.rigid is not None:  # momentum in from the grid, one rigid step (sim/rigid.py)
-            self.rigid.advance(self.x, self.mass, self.order, self.grid_info, self.grid_velocity, *self._rigid_walls, dt)
+            self.rigid.advance(self.grid_info, self.grid_velocity, box_lo, box_shape, *self._rigid_walls, dt)
         self._g2p.set_param_by_name("dt", dt)
         self._g2p.launch()
         if self.rigid is not None:  # velocity out: rigid particles take their body's motion
