@@ -134,7 +134,7 @@ class ForwardModel:
             elif key not in todo:
                 todo[key] = variant
         results: dict[tuple, object] = {}
-        if self.batch and len(todo) > 1:
+        if self.batch and todo:  # single runs too: every fitting run then has the same arithmetic
             results.update(self._simulate_batched(todo, ids))
         else:
             for key, (cloud, scene) in todo.items():

@@ -188,6 +188,12 @@ class BatchedSolver:
                               inputs=[st.x, st.v, st.C, st.F, self.mu, self.lam, self.yield_stress, self.material,
                                       st.Jp, self.fixed_flag, self.run, self.grid_info, self.material_params,
                                       self.dt_run, self.n_sub, 0, self.grid_velocity, st.stress])
+        self._substep_arg = [self._arg_index(launch, "substep") for launch in (self._p2g, self._grid, self._g2p)]
+        self._box_arg = self._arg_index(self._grid, "box_lo")
+
+    @staticmethod
+    def _arg_index(launch: wp.Launch, name: str) -> int:
+        return [arg.label for arg in launch.kernel.adj.args].index(name)
 
     def _set_stiffness(self, run: _Run) -> None:
         """Upload μ, λ and the wave speed of one run's particles (as MPMSolver._set_stiffness; a
@@ -321,15 +327,18 @@ class BatchedSolver:
         self._pending = still
 
     def _launch_substep(self, s: int, alive_slots: np.ndarray | None) -> None:
-        self._p2g.set_param_by_name("substep", s)
-        self._p2g.launch()
-        lo, shape = self._active_box(alive_slots)
-        self._grid.set_dim((self.k,) + shape)
-        self._grid.set_param_by_name("box_lo", wp.vec3i(*lo))
-        self._grid.set_param_by_name("substep", s)
-        self._grid.launch()
-        self._g2p.set_param_by_name("substep", s)
-        self._g2p.launch()
+        """The three launches of substep `s` (host work kept small: a GPU run is launch-bound)."""
+        p2g, grid, g2p = self._p2g, self._grid, self._g2p
+        p2g.set_param_at_index(self._substep_arg[0], s)
+        p2g.launch()
+        if self.device == "cpu":  # the grid launch covers the live particles' box
+            lo, shape = self._active_box(alive_slots)
+            grid.set_dim((self.k,) + shape)
+            grid.set_param_at_index(self._box_arg, wp.vec3i(*lo))
+        grid.set_param_at_index(self._substep_arg[1], s)
+        grid.launch()
+        g2p.set_param_at_index(self._substep_arg[2], s)
+        g2p.launch()
 
     def _active_box(self, alive_slots: np.ndarray | None) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
         """Nodes any live run's particles touch (CPU: the union of tight boxes; GPU: the grid)."""
