@@ -206,6 +206,20 @@ def test_true_mode_refuses_to_change_a_material(device):
         sim.step_frame(1 / 30)
 
 
+def test_true_mode_within_the_budget_runs_true_stiffness_and_reports_the_budget_used(device, capsys):
+    scene = free_scene(gravity=[0, 0, 0], solver={"max_substeps_per_frame": 500, "stiff_parts": "true"})
+    p = Particles.lattice((-0.05, -0.05, 0.0), (0.05, 0.05, 0.1), scene.dx / 2, E=1e7, nu=0.3, density=1000.0,
+                          material_id=JELLY, part_id=7)
+    sim = MPMSolver(p, scene, device)
+    sim.step_frame(1 / 30)
+    need = math.ceil((1 / 30) * p_wave(1e7, 0.3, 1000.0) / (scene.solver.cfl * scene.dx))
+    assert sim.substeps_last_frame == need and sim.stiffness_scale == 1.0 and sim.rigid is None
+    assert f"part 7 (jelly, {len(p):,} particles): E 1e+07 Pa needs {need:,} substeps/frame, budget 500 → true " \
+           "stiffness" in capsys.readouterr().err
+    sim.step_frame(1 / 30)
+    assert len(sim.stiff_part_choices) == 1  # reported once
+
+
 def test_stiff_parts_key_is_checked():
     with pytest.raises(InputError, match="solver.stiff_parts': must be one of auto, rigid, soften, true"):
         Scene.from_dict({"solver": {"stiff_parts": "jelly"}})
@@ -239,7 +253,8 @@ def test_soda_can_dents_and_stays_dented_at_true_stiffness_on_cuda():
         dents.append(d0 - diameter_along_blow(sim.positions(), band))
     need = math.ceil(1e-3 * p_wave(7e10, 0.33, 2700.0) / (scene.solver.cfl * scene.dx))
     assert sim.substeps_last_frame >= need  # true stiffness: the CFL of real aluminium
-    assert sim.stiff_part_choices == [] and sim.rigid is None and sim.stiffness_scale == 1.0
+    assert [(c.choice, c.substeps_needed) for c in sim.stiff_part_choices] == [("true", need)]  # budget reported
+    assert sim.rigid is None and sim.stiffness_scale == 1.0
     dents = np.array(dents)
     print(f"can at true stiffness: {sim.substeps_last_frame:,} substeps/ms (aluminium needs {need:,}); "
           f"dent per ms (mm) {np.round(1000 * dents, 2).tolist()}, diameter {1000 * d0:.1f} mm")

@@ -151,6 +151,21 @@ def plan_stiff_parts(mode: str, x: np.ndarray, part_id: np.ndarray, material_id:
     return StiffPlan(scale, body, held, choices)
 
 
+def true_stiffness_report(part_id: np.ndarray, material_id: np.ndarray, E_pa: np.ndarray,
+                          wave_speed_mps: np.ndarray, moving: np.ndarray, frame_dt_s: float, cfl: float, dx_m: float,
+                          budget: int) -> list[PartChoice]:
+    """Mode "true", every part within the budget: one PartChoice per moving part (stiffest first)
+    saying how many substeps per frame its true stiffness needs, so the budget used is reported."""
+    need = substeps_needed(wave_speed_mps, frame_dt_s, cfl, dx_m)
+    out = []
+    for pid in np.unique(part_id[moving]):
+        sel = moving & (part_id == pid)
+        mat = int(np.bincount(material_id[sel]).argmax())
+        out.append(PartChoice(f"part {int(pid)}" if pid >= 0 else "body", MATERIAL_NAMES[mat], int(sel.sum()),
+                              float(E_pa[sel].max()), int(need[sel].max()), int(budget), "true", 1.0))
+    return sorted(out, key=lambda c: -c.substeps_needed)
+
+
 def _pieces(x: np.ndarray, mask: np.ndarray, fixed: np.ndarray, dx_m: float,
             origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Label (N,) int (0 = not in mask, 1.. = piece) the particles of `mask` by connected occupied
@@ -463,4 +478,4 @@ def wall_bounds(origin: np.ndarray, dx_m: float, dims: tuple[int, int, int], bou
 
 
 __all__ = ["STIFF_PART_MODES", "AUTO_SOFTEN_LIMIT", "PartChoice", "StiffPlan", "RigidBodies", "plan_stiff_parts",
-           "substeps_needed", "wall_bounds"]
+           "substeps_needed", "true_stiffness_report", "wall_bounds"]

@@ -31,7 +31,7 @@ from .constitutive import NO_YIELD
 from .particles import Particles
 from .reduce import FrameStats, StatsReducer, reference_stats
 from .scene import BOUNDARY_CELLS, Scene
-from .rigid import PartChoice, RigidBodies, plan_stiff_parts, wall_bounds
+from .rigid import PartChoice, RigidBodies, plan_stiff_parts, true_stiffness_report, wall_bounds
 from .sort import cell_order, cell_runs, chunk_runs, permute_in_place
 from .state import ARRAY_FIELDS, State
 
@@ -117,6 +117,7 @@ class MPMSolver:
         self.stiff_part_choices: list[PartChoice] = []  # per part over the substep budget (sim/rigid.py)
         self.rigid: RigidBodies | None = None  # parts too stiff for the budget, run as rigid bodies
         self._part_id = particles.part_id.copy()
+        self._true_reported = False  # stiff_parts "true": the per-part budget lines were printed
         self._mass_host = particles.mass  # kg, for rigid bodies
         if sort_every is None:
             sort_every = 1 if self.device == "cpu" or self.n >= SORT_MIN_PARTICLES else 0
@@ -375,6 +376,12 @@ class MPMSolver:
         if n_elastic > s.max_substeps_per_frame:
             self._cap_stiffness(frame_dt_s)
             n_elastic = math.ceil(frame_dt_s / self.dt)
+        elif s.stiff_parts == "true" and not self._true_reported:  # report the budget each part uses
+            self._true_reported = True
+            for choice in true_stiffness_report(self._part_id, self.material_id, self._E, self._wave_speed,
+                                                self._moving, frame_dt_s, s.cfl, self.dx, s.max_substeps_per_frame):
+                stage(choice.line())
+                self.stiff_part_choices.append(choice)
         v_bound = self._speed_bound(frame_dt_s, stats.max_speed_mps)
         n_velocity = math.ceil(frame_dt_s * v_bound / (s.velocity_cfl * self.dx))
         return int(min(max(1, n_elastic, n_velocity), s.max_substeps_per_frame))
