@@ -6,6 +6,7 @@ runtime of one 20k-particle, 2-second diagnosis.
     python benchmarks/bench_diagnose.py --part runtime --device cuda   # runtime on a GPU
     python benchmarks/bench_diagnose.py --part runtime --batch off     # candidate runs one by one
     python benchmarks/bench_diagnose.py --part batch --device cuda     # K runs batched vs one by one
+    python benchmarks/bench_diagnose.py --part runtime --device cuda --graph   # substeps as CUDA graphs
 
 Confusion part: for each object (a generated two-part block, and a generated three-part shrub
 from the dataset generator), each effect of the library hidden at two strengths (and once with
@@ -160,7 +161,8 @@ def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values
     cpu = time.process_time() - cpu_start
     named = d.effect
     print(f"runtime: {n} Gaussians, {seconds:g} s at {fps:g} fps, device {device}, hidden {effect} {values}, "
-          f"batch {'auto' if batch is None else ('on' if batch else 'off')}")
+          f"batch {'auto' if batch is None else ('on' if batch else 'off')}"
+          f"{', CUDA graphs' if sys.modules['pixie_gs.sim.batch'].CUDA_GRAPH else ''}")
     print(f"  warm-up (Warp init, kernels loaded or compiled; not timed below): {warm:.1f} s")
     print(f"  one full simulation (baseline): {one_sim:.1f} s wall ({one_sim_cpu:.1f} s CPU)")
     print(f"  diagnosis incl. outputs: {total:.1f} s wall ({cpu:.1f} s CPU of this process) = "
@@ -173,6 +175,11 @@ def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values
           f"{ {k: round(v, 3) for k, v in named.params.items()} if named else ''}; gap "
           f"{summary['gap_before']:.4f} → {summary['gap_after']:.4f} "
           f"({100 * summary['gap_reduction']:.1f}% smaller)")
+    if d.rounds and d.rounds[0].ranking:
+        top = d.rounds[0].ranking[:4]
+        print("  round-1 ranking: " + "; ".join(
+            f"{s.label} {({k: round(v, 3) for k, v in s.params.items()})} ΔBIC {s.delta_bic:.0f}" for s in top)
+              + (f"; ambiguous with: {', '.join(a.label for a in d.ambiguous)}" if d.ambiguous else ""))
 
 
 def batch_speed(device: str, n: int, seconds: float, fps: float, sizes: tuple[int, ...] = (1, 8, 32)) -> None:
@@ -218,8 +225,14 @@ def main() -> None:
     ap.add_argument("--shrub", type=int, default=800, help="Gaussians of the confusion shrub")
     ap.add_argument("--batch", choices=("auto", "on", "off"), default="auto",
                     help="candidate runs as batched simulations (auto: on a GPU only)")
+    ap.add_argument("--graph", action="store_true",
+                    help="GPU: batched substeps replayed as one CUDA graph each (sim/batch.py CUDA_GRAPH)")
     args = ap.parse_args()
     set_quiet(True)
+    if args.graph:
+        import pixie_gs.sim.batch as batch_module
+
+        batch_module.CUDA_GRAPH = True
     if args.part in ("all", "confusion"):
         confusion(args.device, frames=17, fps=25.0, n_block=args.block, n_shrub=args.shrub)
     if args.part in ("all", "runtime"):

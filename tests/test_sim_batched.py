@@ -184,3 +184,21 @@ def test_batched_diagnosis_names_the_hidden_effect():
     assert d.effect is not None and d.effect.effect == "wind"
     assert d.effect.params["ay_m_s2"] == pytest.approx(2.0, abs=0.4)
     assert d.gap_after < 0.3 * d.gap_before
+
+
+def test_cuda_graph_replay_equals_plain_launches(device):
+    """On a GPU a substep's launches can be replayed as one captured CUDA graph (graph=True):
+    same runs, same substeps, same tracks (to atomic-order rounding) as plain launches."""
+    if device == "cpu":
+        pytest.skip("CUDA graphs exist on GPUs only")
+    runs = varied_runs()
+    replayed = BatchedSolver(runs, device, graph=True)
+    launched = BatchedSolver(runs, device, graph=False)
+    assert replayed.graph is not None and launched.graph is None
+    for _ in range(4):
+        replayed.step_frame(1.0 / 25)
+        launched.step_frame(1.0 / 25)
+        assert replayed.substeps_last_frame == launched.substeps_last_frame
+        for r in range(len(runs)):
+            np.testing.assert_allclose(replayed.positions(r), launched.positions(r), rtol=0, atol=tol(device))
+    assert np.abs(replayed.positions(0) - runs[0][0].x).max() > 0.02

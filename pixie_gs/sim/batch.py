@@ -34,6 +34,9 @@ from .solver import FAR, MAX_STRETCH, MPMSolver, held_particles, lame_parameters
 from .state import State
 
 
+CUDA_GRAPH = False  # default of BatchedSolver(graph=None): replay substeps as a CUDA graph on a GPU
+
+
 def batch_key(scene: Scene) -> tuple:
     """What runs of one batch must share (grid, walls, materials and solver settings)."""
     m, s = scene.materials, scene.solver
@@ -70,7 +73,9 @@ class BatchedSolver:
     ComputationError that stopped it), substeps_last_frame (per run).
     """
 
-    def __init__(self, runs: list[tuple[Particles, Scene]], device: str = "cpu") -> None:
+    def __init__(self, runs: list[tuple[Particles, Scene]], device: str = "cpu", graph: bool | None = None) -> None:
+        """`graph`: on a GPU, replay each substep's launches as one captured CUDA graph
+        (None: the module default CUDA_GRAPH); ignored on the CPU."""
         from ..devices import resolve_warp_device
 
         if not runs:
@@ -140,10 +145,23 @@ class BatchedSolver:
         self.alive_flag = wp.ones(self.k, dtype=wp.int32, device=d)
         self.v_limit = wp.full(self.k, FAR, dtype=float, device=d)
         self.maxima = wp.zeros((self.k, 2), dtype=float, device=d)
+        self.substep = wp.zeros(1, dtype=wp.int32, device=d)  # read by the kernels (graph-friendly)
+        self.frame_start = wp.zeros(1, dtype=wp.float64, device=d)  # s
+        self._substep_host = self.substep.numpy() if d == "cpu" else None  # a view on the CPU
         self.bad = wp.zeros((self.k, 7), dtype=wp.int32, device=d)
         self._pending = [(r, i) for r, run in enumerate(self._runs) for i in range(len(run.scene.impulses))]
         self._stats: tuple[np.ndarray, np.ndarray] | None = None
         self._record_launches()
+        self.graph = None
+        if d != "cpu" and (CUDA_GRAPH if graph is None else graph):
+            wp.capture_begin(device=d, force_module_load=True)
+            try:
+                self._p2g.launch()
+                self._grid.launch()
+                self._g2p.launch()
+                self._next.launch()
+            finally:
+                self.graph = wp.capture_end(device=d)
 
     # ------------------------------------------------------------------ set-up
     def _forces(self, scenes: list[Scene]) -> bk.RunForces:
@@ -177,18 +195,18 @@ class BatchedSolver:
         d, st = self.device, self.state
         self._p2g = wp.launch(bk.p2g_batched, dim=self.n, device=d, record_cmd=True,
                               inputs=[st.x, st.v, st.C, st.stress, self.volume, self.mass, self.fixed_flag, self.run,
-                                      self.grid_info, self.dt_run, self.n_sub, 0, self.grid_mass,
+                                      self.grid_info, self.dt_run, self.n_sub, self.substep, self.grid_mass,
                                       self.grid_momentum, self.grid_fixed])
         self._grid = wp.launch(bk.grid_update_batched, dim=(self.k,) + tuple(self.dims), device=d, record_cmd=True,
                                inputs=[self.grid_mass, self.grid_momentum, self.grid_fixed, self.grid_velocity,
-                                       self.grid_info, wp.vec3i(0, 0, 0), self.dt_run, self.n_sub, 0,
-                                       wp.float64(0.0), self.dt_run64, self.forces, int(self.scene.walls == "sticky"),
+                                       self.grid_info, wp.vec3i(0, 0, 0), self.dt_run, self.n_sub, self.substep,
+                                       self.frame_start, self.dt_run64, self.forces, int(self.scene.walls == "sticky"),
                                        BOUNDARY_CELLS])
         self._g2p = wp.launch(bk.g2p_batched, dim=self.n, device=d, record_cmd=True,
                               inputs=[st.x, st.v, st.C, st.F, self.mu, self.lam, self.yield_stress, self.material,
                                       st.Jp, self.fixed_flag, self.run, self.grid_info, self.material_params,
-                                      self.dt_run, self.n_sub, 0, self.grid_velocity, st.stress])
-        self._substep_arg = [self._arg_index(launch, "substep") for launch in (self._p2g, self._grid, self._g2p)]
+                                      self.dt_run, self.n_sub, self.substep, self.grid_velocity, st.stress])
+        self._next = wp.launch(bk.advance_substep, dim=1, device=d, record_cmd=True, inputs=[self.substep, 1, 1])
         self._box_arg = self._arg_index(self._grid, "box_lo")
 
     @staticmethod
@@ -286,7 +304,11 @@ class BatchedSolver:
         self.dt_run.assign(dts.astype(np.float32))
         self.dt_run64.assign(dts)
         t0 = self.time_s
-        self._grid.set_param_by_name("frame_start_s", wp.float64(t0))
+        self.frame_start.assign(np.array([t0], np.float64))
+        if self._substep_host is not None:
+            self._substep_host[0] = 0
+        else:
+            wp.launch(bk.advance_substep, dim=1, device=self.device, inputs=[self.substep, 0, 0])
         self.grid_mass.zero_()
         self.grid_momentum.zero_()
         self.grid_fixed.zero_()
@@ -327,18 +349,22 @@ class BatchedSolver:
         self._pending = still
 
     def _launch_substep(self, s: int, alive_slots: np.ndarray | None) -> None:
-        """The three launches of substep `s` (host work kept small: a GPU run is launch-bound)."""
-        p2g, grid, g2p = self._p2g, self._grid, self._g2p
-        p2g.set_param_at_index(self._substep_arg[0], s)
-        p2g.launch()
-        if self.device == "cpu":  # the grid launch covers the live particles' box
+        """Substep `s` (the kernels read it from self.substep): three launches that never change
+        their arguments on a GPU (launch-bound there: replayed as one CUDA graph when `graph`);
+        on the CPU the grid launch covers the live particles' box."""
+        if self.graph is not None:
+            wp.capture_launch(self.graph)  # p2g, grid, g2p, substep += 1
+            return
+        if self._substep_host is not None:
+            self._substep_host[0] = s
             lo, shape = self._active_box(alive_slots)
-            grid.set_dim((self.k,) + shape)
-            grid.set_param_at_index(self._box_arg, wp.vec3i(*lo))
-        grid.set_param_at_index(self._substep_arg[1], s)
-        grid.launch()
-        g2p.set_param_at_index(self._substep_arg[2], s)
-        g2p.launch()
+            self._grid.set_dim((self.k,) + shape)
+            self._grid.set_param_at_index(self._box_arg, wp.vec3i(*lo))
+        self._p2g.launch()
+        self._grid.launch()
+        self._g2p.launch()
+        if self._substep_host is None:
+            self._next.launch()
 
     def _active_box(self, alive_slots: np.ndarray | None) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
         """Nodes any live run's particles touch (CPU: the union of tight boxes; GPU: the grid)."""
@@ -389,7 +415,7 @@ class BatchedSolver:
 
 
 def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: float, device: str = "auto",
-                   fill: bool = False, quiet: bool = True) -> list:
+                   fill: bool = False, quiet: bool = True, graph: bool | None = None) -> list:
     """`sim.run.simulate` for several (cloud, scene) models at once, on one shared grid shape:
     one Trajectory per model, or the ComputationError that stopped that model's run (the others
     still finish). Raises InputError for unusable input (as simulate does)."""
@@ -400,7 +426,7 @@ def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: flo
     if not fps > 0:
         raise InputError(f"fps must be > 0, got {fps}")
     built = [build_particles(cloud, scene, fill=fill) for cloud, scene in models]
-    solver = BatchedSolver([(p, sc) for (p, _), (_, sc) in zip(built, models)], device)
+    solver = BatchedSolver([(p, sc) for (p, _), (_, sc) in zip(built, models)], device, graph=graph)
     t = np.arange(frames, dtype=np.float64) / fps
     ns = [len(cloud) for cloud, _ in models]
     x0_in = [cloud.means.astype(np.float32) for cloud, _ in models]

@@ -3,7 +3,9 @@
 K runs (candidate parameter sets of one object, or different objects on the same grid) form one
 particle set; `run[p]` says which run particle p belongs to, and each run has its own grid
 (the grid arrays are 4-D: run, i, j, k), its own substep dt (s) and count, and its own scene
-scalars (gravity, wind, damping, drag, ground). A run whose frame is done (`substep ≥ n_sub[r]`)
+scalars (gravity, wind, damping, drag, ground). The substep index and the frame's start time are
+read from 1-element device arrays, so a substep's launches never change their arguments (a
+CUDA graph can replay them). A run whose frame is done (`substep ≥ n_sub[r]`)
 or that has failed sits out (its particles and nodes are skipped), so every run takes exactly
 the substeps it would take alone. The arithmetic follows sim/kernels.py (p2g, grid_update, g2p)
 term by term, so on the CPU (where Warp runs a launch's threads in order) a batched run gives
@@ -19,15 +21,21 @@ from .kernels import GridInfo, bspline_weights, stencil_of
 
 
 @wp.func
-def run_active(r: int, substep: int, n_sub: wp.array(dtype=wp.int32)) -> bool:
-    return substep < n_sub[r]
+def run_active(r: int, substep: wp.array(dtype=wp.int32), n_sub: wp.array(dtype=wp.int32)) -> bool:
+    return substep[0] < n_sub[r]
+
+
+@wp.kernel
+def advance_substep(substep: wp.array(dtype=wp.int32), value: int, add: int):
+    """substep[0] ← substep[0]·add + value (add 0: set; add 1, value 1: next substep)."""
+    substep[0] = substep[0] * add + value
 
 
 @wp.kernel
 def p2g_batched(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33),
                 stress: wp.array(dtype=wp.mat33), volume: wp.array(dtype=float), mass: wp.array(dtype=float),
                 fixed: wp.array(dtype=wp.int32), run: wp.array(dtype=wp.int32), grid: GridInfo,
-                dt_run: wp.array(dtype=float), n_sub: wp.array(dtype=wp.int32), substep: int,
+                dt_run: wp.array(dtype=float), n_sub: wp.array(dtype=wp.int32), substep: wp.array(dtype=wp.int32),
                 grid_mass: wp.array4d(dtype=float), grid_momentum: wp.array4d(dtype=wp.vec3),
                 grid_fixed: wp.array4d(dtype=float)):
     """kernels.p2g into the grid of the particle's run."""
@@ -80,7 +88,8 @@ class RunForces:
 def grid_update_batched(grid_mass: wp.array4d(dtype=float), grid_momentum: wp.array4d(dtype=wp.vec3),
                         grid_fixed: wp.array4d(dtype=float), grid_velocity: wp.array4d(dtype=wp.vec3),
                         grid: GridInfo, box_lo: wp.vec3i, dt_run: wp.array(dtype=float),
-                        n_sub: wp.array(dtype=wp.int32), substep: int, frame_start_s: wp.float64,
+                        n_sub: wp.array(dtype=wp.int32), substep: wp.array(dtype=wp.int32),
+                        frame_start_s: wp.array(dtype=wp.float64),
                         dt_run64: wp.array(dtype=wp.float64), forces: RunForces, sticky_walls: int, boundary: int):
     """kernels.grid_update on each active run's grid with that run's forces; time of run r is
     frame_start_s + substep · dt_r (in float64, as the unbatched solver computes it on the host)."""
@@ -88,7 +97,7 @@ def grid_update_batched(grid_mass: wp.array4d(dtype=float), grid_momentum: wp.ar
     if not run_active(r, substep, n_sub):
         return
     dt = dt_run[r]
-    time_s = float(frame_start_s + wp.float64(substep) * dt_run64[r])
+    time_s = float(frame_start_s[0] + wp.float64(substep[0]) * dt_run64[r])
     i = a + box_lo[0]
     j = b + box_lo[1]
     k = c + box_lo[2]
@@ -141,7 +150,8 @@ def g2p_batched(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.ar
                 F: wp.array(dtype=wp.mat33), mu: wp.array(dtype=float), lam: wp.array(dtype=float),
                 yield_stress: wp.array(dtype=float), material: wp.array(dtype=wp.int32), Jp: wp.array(dtype=float),
                 fixed: wp.array(dtype=wp.int32), run: wp.array(dtype=wp.int32), grid: GridInfo,
-                mp: MaterialParams, dt_run: wp.array(dtype=float), n_sub: wp.array(dtype=wp.int32), substep: int,
+                mp: MaterialParams, dt_run: wp.array(dtype=float), n_sub: wp.array(dtype=wp.int32),
+                substep: wp.array(dtype=wp.int32),
                 grid_velocity: wp.array4d(dtype=wp.vec3), stress: wp.array(dtype=wp.mat33)):
     """kernels.g2p from the grid of the particle's run."""
     p = wp.tid()
