@@ -12,7 +12,7 @@ OUT=${OUT:?set OUT to the output folder}
 mkdir -p "$OUT"
 DEVICE=${DEVICE:-cuda}; NPROC=${NPROC:-2}; WORKERS=${WORKERS:-14}
 TRAIN=${TRAIN:-1600}; VAL=${VAL:-160}; GAUSSIANS=${GAUSSIANS:-12000}; SEED=${SEED:-3}
-EPOCHS=${EPOCHS:-4}; BATCH=${BATCH:-32}     # BATCH: objects per optimiser step, split over the GPUs
+EPOCHS=${EPOCHS:-5}; BATCH=${BATCH:-32}     # BATCH: objects per optimiser step, split over the GPUs
 RES=${RES:-64}; WIDTH=${WIDTH:-16}; MULT=${MULT:-1,2,4}
 DATA=${DATA:-/tmp/pixie_ddp_data}
 # NVLink multicast stays off on the lent multi-GPU hosts (KINDS.md): keep these set for every process.
