@@ -23,7 +23,8 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--time-budget-s", type=float, default=None, help="stop (and anneal the LR) within this wall time")
     p.add_argument("--resume", action="store_true", help="continue from CKPT.state.pt")
     p.add_argument("--init", default=None, metavar="CKPT0", help="start from this checkpoint's weights (fine-tuning)")
-    p.add_argument("--batch-size", type=int, default=8, help="objects per optimiser step, over all processes (default 8)")
+    p.add_argument("--batch-size", type=int, default=8,
+                   help="objects per optimiser step, over all processes (default 8)")
     p.add_argument("--lr", type=float, default=2e-3, help="Adam learning rate (default 2e-3)")
     p.add_argument("--seed", type=int, default=0, help="seed for initialisation, shuffling and augmentation")
     p.add_argument("--inputs", choices=["full", "rgb", "occupancy"], default="full",
@@ -75,6 +76,6 @@ def run(args: argparse.Namespace) -> int:
         distributed.leave(ctx)
     if ctx.is_main:
         best = meta.get("val", {}).get("voxel", {})
-        print(f"checkpoint {args.out}: best epoch {meta.get('best_epoch')}  val accuracy {best.get('accuracy', 0):.4f}  "
-              f"val avg mse {best.get('mse_avg', 0):.4f}")
+        print(f"checkpoint {args.out}: best epoch {meta.get('best_epoch')}  "
+              f"val accuracy {best.get('accuracy', 0):.4f}  val avg mse {best.get('mse_avg', 0):.4f}")
     return 0
