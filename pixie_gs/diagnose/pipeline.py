@@ -259,6 +259,11 @@ def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "au
     work, from_materials = working_cloud(cloud)
     registration = None
     primed = None
+    if options.batch is None:  # batched simulation on a GPU only (forward.py)
+        from ..devices import resolve_warp_device
+
+        options = copy.copy(options)
+        options.batch = resolve_warp_device(device) != "cpu"
     if options.checks:
         tracks, registration, primed = prepare_tracks(tracks, work, scene, device, options)
     model = ForwardModel(work, tracks, device=device, fill=options.fill, fidelity=options.fidelity, cache=cache,
@@ -347,7 +352,14 @@ def prepare_tracks(tracks: MeasuredTracks, cloud: SplatCloud, scene, device: str
     set_quiet(True)
     try:
         stage("checks: simulating the model as given for the start-time offset and outlier tracks")
-        traj = simulate(cloud, scene, frames + 4, fps, device=device, fill=options.fill)
+        if options.batch:  # the same solver path as every fitting run (sim/batch.py)
+            from ..sim.batch import simulate_batch
+
+            traj = simulate_batch([(cloud, scene)], frames + 4, fps, device=device, fill=options.fill)[0]
+            if isinstance(traj, Exception):
+                raise traj
+        else:
+            traj = simulate(cloud, scene, frames + 4, fps, device=device, fill=options.fill)
     finally:
         set_quiet(quiet)
     xs = traj.x[:, tracks.ids].astype(np.float64)
