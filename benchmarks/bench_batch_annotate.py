@@ -1,0 +1,183 @@
+"""Benchmark: batch `pixie annotate DIR OUT` end to end (read → prepare → annotate → write) in assets/s,
+against the per-file CLI loop (`pixie annotate IN OUT` once per file) measured in the same run.
+
+Generates `--count` assets of ~`--gaussians` Gaussians (pixie_gs.dataset generators, cycling through
+the classes; in parallel processes), runs the batch as a fresh `pixie annotate` process (its wall time
+includes importing torch and loading the checkpoint once), then the CLI loop on `--loop-files` of the
+same files, checks that their outputs are byte-identical, and prints both rates and their ratio.
+Needs torch, numpy, scipy, plyfile (no warp):
+
+    python benchmarks/bench_batch_annotate.py --count 20 --gaussians 100000             # this CPU (≥ 1 asset/s)
+    python benchmarks/bench_batch_annotate.py --count 1000 --gaussians 100000 --device cuda   # GPU (≥ 10/s)
+"""
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+LABELS = ("material_id", "E", "nu", "density", "part_id")
+
+
+def make_asset(path: str, class_name: str, seed: int, count: int) -> int:
+    """A generated object (labels stripped) with `count` Gaussians, written as a 3DGS .ply; returns the count."""
+    import numpy as np
+
+    from pixie_gs.dataset.assemble import build_object
+    from pixie_gs.dataset.labels import load_class_table
+    from pixie_gs.splat import write_splat
+
+    cloud, _ = build_object(load_class_table()[class_name], seed, int(count * 1.3))  # counts vary ±20 %
+    if len(cloud) > count:
+        cloud = cloud.subset(np.sort(np.random.default_rng(seed).choice(len(cloud), count, replace=False)))
+    for name in LABELS:
+        cloud.extras.pop(name, None)
+    cloud.property_order = [p for p in cloud.property_order if p not in LABELS]
+    write_splat(cloud, path)
+    return len(cloud)
+
+
+def generate(folder: Path, count: int, gaussians: int, jobs: int) -> float:
+    """Write `count` assets into `folder` with `jobs` processes; returns the seconds it took."""
+    from pixie_gs.dataset.labels import load_class_table
+
+    names = sorted(load_class_table())
+    t = time.perf_counter()
+    with cf.ProcessPoolExecutor(jobs) as ex:
+        futures = [ex.submit(make_asset, str(folder / f"asset_{i:05d}.ply"), names[i % len(names)], 1000 + i,
+                             gaussians) for i in range(count)]
+        sizes = [f.result() for f in futures]
+    print(f"generated {count} assets of {min(sizes)}–{max(sizes)} Gaussians with {jobs} processes in "
+          f"{time.perf_counter() - t:.1f} s", flush=True)
+    return time.perf_counter() - t
+
+
+def pixie(*args: str) -> list[str]:
+    return [sys.executable, "-m", "pixie_gs", *args]
+
+
+def run_batch(inp: Path, out: Path, device: str, extra: list[str], timeout: float) -> tuple[float, int, dict]:
+    """(wall seconds, assets done, mean step seconds) of one fresh `pixie annotate DIR OUT` process;
+    past `timeout` it is stopped and the assets finished so far count."""
+    import signal
+
+    cmd = pixie("annotate", str(inp), str(out), "--device", device, "-q", *extra)
+    t = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        stdout, stderr = proc.communicate(timeout=max(1.0, timeout))
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)  # the command and its pool workers
+        stdout, stderr = proc.communicate()
+        print(f"  stopped at the time budget ({timeout:.0f} s)", flush=True)
+    wall = time.perf_counter() - t
+    if proc.returncode not in (0, -signal.SIGKILL):
+        raise SystemExit(f"batch failed ({proc.returncode}): {stderr.strip()[-2000:]}")
+    if stdout.strip():
+        print("  " + stdout.strip().splitlines()[-1], flush=True)
+    recs = [json.loads(x) for x in (out / "summary.jsonl").read_text().splitlines()] if (out / "summary.jsonl").exists() else []
+    ok = [r for r in recs if r["status"] == "ok"]
+    steps = {k: sum(r["step_seconds"][k] for r in ok) / max(1, len(ok)) for k in ("read_prepare", "model", "write")}
+    return wall, len(ok), steps
+
+
+def run_loop(files: list[Path], out: Path, device: str) -> float:
+    """Wall seconds of the per-file CLI loop: one `pixie annotate IN OUT` process per file."""
+    t = time.perf_counter()
+    for f in files:
+        subprocess.run(pixie("annotate", str(f), str(out / f.name), "--device", device, "-q"), check=True,
+                       capture_output=True)
+    return time.perf_counter() - t
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--count", type=int, default=20, help="assets in the batch (default 20)")
+    ap.add_argument("--gaussians", type=int, default=100_000, help="Gaussians per asset (default 100k)")
+    ap.add_argument("--device", default="cpu", help="cpu | cuda | auto (default cpu)")
+    ap.add_argument("--loop-files", type=int, default=3, help="files for the per-file CLI baseline (default 3)")
+    ap.add_argument("--pools", default="process,thread",
+                    help="local pool kinds to time, comma-separated (default process,thread)")
+    ap.add_argument("--workers", type=int, default=None, help="pool workers (default: pixie's default)")
+    ap.add_argument("--model-threads", default="1", help="model threads to time, comma-separated (default 1)")
+    ap.add_argument("--gen-jobs", type=int, default=os.cpu_count() or 1, help="processes generating assets")
+    ap.add_argument("--budget-s", type=float, default=460.0,
+                    help="stop a batch that would run past this many seconds since the start (default 460)")
+    ap.add_argument("--dir", default=None, help="work folder (default: a temporary one, removed at the end); "
+                    "assets already there are reused")
+    args = ap.parse_args()
+
+    import torch
+
+    start = time.perf_counter()
+    os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p)
+    work = Path(args.dir or tempfile.mkdtemp(prefix="pixie-bench-batch-"))
+    lib = work / "lib"
+    lib.mkdir(parents=True, exist_ok=True)
+    try:
+        have = len(list(lib.glob("asset_*.ply")))
+        print(f"device {args.device} (torch {torch.__version__}, CUDA {torch.cuda.is_available()}), "
+              f"{os.cpu_count()} CPU cores, torch threads {torch.get_num_threads()}", flush=True)
+        if have != args.count:
+            shutil.rmtree(lib)
+            lib.mkdir()
+            generate(lib, args.count, args.gaussians, args.gen_jobs)
+        rates: dict[str, float] = {}
+        first_out = None
+        for pool in args.pools.split(","):
+            for threads in args.model_threads.split(","):
+                label = f"batch --pool {pool} --model-threads {threads}"
+                out = work / f"out_{pool}_{threads}"
+                shutil.rmtree(out, ignore_errors=True)
+                extra = ["--pool", pool, "--model-threads", threads]
+                if args.workers:
+                    extra += ["--workers", str(args.workers)]
+                left = args.budget_s - (time.perf_counter() - start)
+                if left < 30:
+                    print(f"{label}: skipped (time budget spent)", flush=True)
+                    continue
+                print(label, flush=True)
+                wall, done, steps = run_batch(lib, out, args.device, extra, left)
+                rates[label] = done / wall
+                print(f"  {done} assets in {wall:.1f} s (fresh process, torch import + checkpoint load "
+                      f"included): {rates[label]:.2f} assets/s; mean per asset: read+prepare "
+                      f"{steps['read_prepare']:.3f} s, model {steps['model']:.3f} s, write {steps['write']:.3f} s",
+                      flush=True)
+                first_out = first_out or out
+        files = [f for f in sorted(lib.glob("asset_*.ply"))[: args.loop_files]
+                 if first_out is not None and (first_out / f.name).exists()]
+        loop_rate = None
+        if files:
+            loop_out = work / "out_loop"
+            shutil.rmtree(loop_out, ignore_errors=True)
+            loop_out.mkdir()
+            loop_wall = run_loop(files, loop_out, args.device)
+            loop_rate = len(files) / loop_wall
+            same = all((loop_out / f.name).read_bytes() == (first_out / f.name).read_bytes() for f in files)
+            print(f"per-file CLI loop: {len(files)} files in {loop_wall:.1f} s: {loop_rate:.2f} assets/s; "
+                  f"outputs byte-identical to the batch's: {same}", flush=True)
+        if not rates:
+            raise SystemExit("no batch ran within the time budget")
+        best = max(rates, key=rates.get)
+        target = 10.0 if args.device.startswith("cuda") else 1.0
+        ratio = f" = {rates[best] / loop_rate:.1f}× the per-file loop" if loop_rate else ""
+        print(f"best: {best}: {rates[best]:.2f} assets/s{ratio}; target ≥ {target:g} assets/s at "
+              f"{args.gaussians} Gaussians: {'met' if rates[best] >= target else 'NOT met'} "
+              f"(total {time.perf_counter() - start:.0f} s)", flush=True)
+    finally:
+        if args.dir is None:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

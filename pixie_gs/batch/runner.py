@@ -1,0 +1,159 @@
+"""The local batch: the model is loaded once in this process and runs the assets one after another
+while a pool (threads or processes) reads + prepares the next ones and writes the finished ones.
+
+Each step catches its own failure, so a bad file becomes a `failed` summary line with its one-line
+error and the other assets still run. `annotate_job` (all three steps in one call) is what a Ray
+actor runs per asset.
+"""
+from __future__ import annotations
+
+import concurrent.futures as cf
+import time
+from typing import Iterator
+
+from .jobs import Job
+from .steps import AnnotateOptions, PreparedAsset, predict, read_prepared, write_result
+from .summary import asset_record, error_line
+
+POOL_KINDS = ("process", "thread")
+
+
+class Failed:
+    """A step's failure, picklable: the one-line message and the exit code it maps to (1 input, 3 computation)."""
+
+    def __init__(self, exc: BaseException, path: str) -> None:
+        from ..errors import PixieError
+
+        self.message = error_line(exc, path)
+        self.exit_code = exc.exit_code if isinstance(exc, PixieError) else 3
+
+
+def load_step(job: Job, opts: AnnotateOptions) -> tuple[PreparedAsset | Failed, float]:
+    """Read + prepare one input in a pool worker: (asset or Failed, seconds)."""
+    t = time.perf_counter()
+    try:
+        return read_prepared(job.input, opts), time.perf_counter() - t
+    except Exception as exc:  # noqa: BLE001 - any failure of one asset must not stop the batch
+        return Failed(exc, job.input), time.perf_counter() - t
+
+
+def write_step(job: Job, out, prepared, seconds: dict[str, float]) -> dict:
+    """Write one annotated cloud (+ sidecar) in a pool worker; returns its summary record."""
+    t = time.perf_counter()
+    try:
+        write_result(out, prepared, job.output)
+    except Exception as exc:  # noqa: BLE001
+        seconds["write"] = time.perf_counter() - t
+        failed = Failed(exc, job.output)
+        return asset_record(job, "failed", seconds, error=failed.message) | {"exit_code": failed.exit_code}
+    seconds["write"] = time.perf_counter() - t
+    return asset_record(job, "ok", seconds, out)
+
+
+def model_step(asset: PreparedAsset, opts: AnnotateOptions, job: Job):
+    """Predict one prepared asset with the model of this process: (annotated cloud or Failed, seconds)."""
+    t = time.perf_counter()
+    try:
+        return predict(asset, opts), time.perf_counter() - t
+    except Exception as exc:  # noqa: BLE001
+        return Failed(exc, job.input), time.perf_counter() - t
+
+
+def annotate_job(job: Job, opts: AnnotateOptions) -> dict:
+    """All steps of one asset in the calling process (a Ray actor's unit of work): its summary record."""
+    asset, t_load = load_step(job, opts)
+    if isinstance(asset, Failed):
+        return _failed_record(job, asset, {"read_prepare": t_load})
+    out, t_model = model_step(asset, opts, job)
+    seconds = {"read_prepare": t_load, "model": t_model}
+    if isinstance(out, Failed):
+        return _failed_record(job, out, seconds)
+    return write_step(job, out, asset.prepared, seconds)
+
+
+def _failed_record(job: Job, failed: Failed, seconds: dict[str, float]) -> dict:
+    return asset_record(job, "failed", seconds, error=failed.message) | {"exit_code": failed.exit_code}
+
+
+def _quiet_worker() -> None:
+    """Pool process initialiser: no stage lines from the workers (the parent shows one progress bar)."""
+    from ..progress import set_quiet
+
+    set_quiet(True)
+
+
+def make_pool(kind: str, workers: int) -> cf.Executor:
+    """`workers` threads, or processes started with 'spawn' (never fork a process that holds torch's threads)."""
+    if kind == "thread":
+        return cf.ThreadPoolExecutor(max_workers=workers, thread_name_prefix="pixie-batch")
+    import multiprocessing
+
+    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                  initializer=_quiet_worker)
+
+
+def run_local(jobs: list[Job], opts: AnnotateOptions, workers: int = 2, pool: str = "process",
+              model_threads: int = 1) -> Iterator[dict]:
+    """Annotate `jobs`, yielding each asset's summary record as it finishes (order not kept).
+
+    The model is loaded here once (`get_model`) and run by `model_threads` threads of this process
+    (1 on a CPU: torch already uses every core); `workers` pool workers read + prepare the next
+    assets and write the annotated ones."""
+    from ..annotate import get_model
+    from ..devices import resolve_torch_device
+
+    if pool not in POOL_KINDS:
+        raise ValueError(f"pool must be one of {POOL_KINDS}")
+    ex = make_pool(pool, workers)  # spawned processes start while the model loads
+    model_ex = cf.ThreadPoolExecutor(max_workers=model_threads, thread_name_prefix="pixie-model")
+    try:
+        get_model(opts.checkpoint, resolve_torch_device(opts.device))
+        yield from _pipeline(ex, model_ex, jobs, opts, ahead=workers + model_threads)
+    finally:
+        model_ex.shutdown(wait=True, cancel_futures=True)
+        ex.shutdown(wait=True, cancel_futures=True)
+
+
+def _model_task(asset: PreparedAsset, opts: AnnotateOptions, job: Job, t_load: float):
+    out, t_model = model_step(asset, opts, job)
+    return out, asset.prepared, {"read_prepare": t_load, "model": t_model}
+
+
+def _pipeline(ex: cf.Executor, model_ex: cf.Executor, jobs: list[Job], opts: AnnotateOptions,
+              ahead: int) -> Iterator[dict]:
+    """Read/prepare → model → write as futures: at most `ahead` assets read but not yet predicted and
+    at most `ahead` results waiting to be written, so memory stays bounded for any library size."""
+    todo = iter(jobs)
+    loading: dict[cf.Future, Job] = {}
+    predicting: dict[cf.Future, Job] = {}
+    writing: dict[cf.Future, Job] = {}
+
+    def top_up() -> None:
+        while len(loading) + len(predicting) < ahead and len(writing) <= ahead:
+            job = next(todo, None)
+            if job is None:
+                return
+            loading[ex.submit(load_step, job, opts)] = job
+
+    top_up()
+    while loading or predicting or writing:
+        done, _ = cf.wait(list(loading) + list(predicting) + list(writing), return_when=cf.FIRST_COMPLETED)
+        for fut in done:
+            if fut in loading:
+                job = loading.pop(fut)
+                asset, t_load = fut.result()
+                if isinstance(asset, Failed):
+                    yield _failed_record(job, asset, {"read_prepare": t_load})
+                else:
+                    predicting[model_ex.submit(_model_task, asset, opts, job, t_load)] = job
+            elif fut in predicting:
+                job = predicting.pop(fut)
+                out, prepared, seconds = fut.result()
+                if isinstance(out, Failed):
+                    yield _failed_record(job, out, seconds)
+                else:
+                    writing[ex.submit(write_step, job, out, prepared, seconds)] = job
+            else:
+                writing.pop(fut)
+                yield fut.result()
+        top_up()

@@ -1,0 +1,105 @@
+"""The per-asset steps of `pixie annotate`: read + prepare, predict, write.
+
+The single-file command and every batch runner (local pool, Ray actors) call these same functions,
+so the output of a batch for one file is byte-identical to `pixie annotate IN OUT`.
+"""
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..splat import SplatCloud
+
+
+@dataclass(frozen=True)
+class AnnotateOptions:
+    """What `pixie annotate` was asked to do to every file (picklable: sent to pool workers and Ray actors).
+
+    up: "auto", an axis name or "x,y,z"; crop: a `--crop` spec or None; device: auto/cpu/cuda."""
+
+    checkpoint: str | None = None
+    device: str = "auto"
+    up: str = "auto"
+    crop: str | None = None
+    no_prepare: bool = False
+    drop_invalid: bool = False
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> "AnnotateOptions":
+        return cls(checkpoint=args.checkpoint, device=args.device, up=args.up, crop=args.crop,
+                   no_prepare=bool(getattr(args, "no_prepare", False)), drop_invalid=bool(args.drop_invalid))
+
+    def validate(self) -> None:
+        """InputError for a bad --up or --crop before any file is read."""
+        from ..prepare import parse_crop, parse_up
+
+        parse_up(self.up)
+        parse_crop(self.crop)
+
+
+@dataclass
+class PreparedAsset:
+    """One input read and prepared: the cloud as read, the cloud the model sees (with `role` and
+    `object_id`) and the PreparedScene (None with --no-prepare)."""
+
+    cloud: SplatCloud
+    model_cloud: SplatCloud
+    prepared: object | None
+
+
+def read_prepared(path: str | Path, opts: AnnotateOptions, announce: bool = False) -> PreparedAsset:
+    """Read and validate `path`, then prepare it (floaters, up, ground, objects) unless --no-prepare.
+    `announce`: print the preparation's summary line (the single-file command does; a batch does not)."""
+    from ..prepare import prepare_cloud
+    from ..progress import stage
+    from ..splat import read_splat_valid
+
+    cloud = read_splat_valid(path, opts.drop_invalid)
+    if opts.no_prepare:
+        return PreparedAsset(cloud, cloud, None)
+    if announce:
+        stage(f"preparing {len(cloud)} Gaussians (floaters, up, ground, objects)")
+    model_cloud, scene = prepare_cloud(cloud, up=opts.up, crop=opts.crop)
+    if announce:
+        print(scene.summary(), flush=True)
+    return PreparedAsset(cloud, model_cloud, scene)
+
+
+def predict(asset: PreparedAsset, opts: AnnotateOptions) -> SplatCloud:
+    """The annotated cloud to write: with preparation, the input's properties plus the materials,
+    confidence and a `pixie up` header comment; with --no-prepare, the annotated model cloud."""
+    from ..annotate import annotate_cloud
+    from ..prepare import parse_up
+
+    given_up = parse_up(opts.up)
+    out = annotate_cloud(asset.model_cloud, opts.checkpoint, opts.device,
+                         given_up if given_up is not None else "z", prepared=asset.prepared)
+    if asset.prepared is not None:  # the output keeps the input's properties + materials (roles: `pixie prepare`)
+        out = input_with_results(asset.cloud, out, asset.prepared.up_vector)
+    return out
+
+
+def write_result(out: SplatCloud, prepared, path: str | Path) -> None:
+    """Write the annotated splat (atomically), then its OUT.prepare.json sidecar when prepared."""
+    from ..cli.cmd_prepare import write_sidecar
+    from ..splat import write_splat
+
+    write_splat(out, path)
+    write_sidecar(prepared, path)
+
+
+def input_with_results(cloud: SplatCloud, annotated: SplatCloud, up_vector) -> SplatCloud:
+    """The input cloud plus the materials and confidence of `annotated`, and the up vector the
+    preparation used as a `pixie up X Y Z` header comment, so `pixie simulate` on this file
+    turns it the same way instead of estimating up again."""
+    from ..prepare.updir import DECLARED_PREFIX, declared_up
+
+    out = cloud.copy()
+    out.set_materials(*annotated.get_materials())
+    if annotated.has("confidence"):
+        out.set("confidence", annotated.get("confidence"))
+    if declared_up(out.comments) is None:
+        x, y, z = (float(v) for v in up_vector)
+        out.comments = list(out.comments) + [f"{DECLARED_PREFIX} {x:.6g} {y:.6g} {z:.6g}"]
+    return out
