@@ -6,7 +6,8 @@ needs more than `solver.max_substeps_per_frame`, `plan_stiff_parts` decides per 
 `solver.stiff_parts`, docs/scene.md): "auto" (default) and "rigid" make a solid part (jelly or
 metal) a rigid body — "auto" only when it would otherwise have to be softened more than
 AUTO_SOFTEN_LIMIT×, milder cases are softened; "soften" lowers E until it fits (yield strain
-kept); "true" refuses to run (InputError) rather than change the material. Sand, snow, fluid and
+kept); "true" never changes a material: it reports the substeps each part uses of the budget,
+and refuses to run (InputError) when a part does not fit. Sand, snow, fluid and
 visco-plastic parts are never made rigid (they flow): they are softened. Every choice is one
 printed line, e.g. "part 3 (metal, 1,204 particles): E 7e+10 Pa needs 31,008 substeps/frame,
 budget 2,000 → rigid".
@@ -43,8 +44,8 @@ FAR_F = wp.constant(FAR)  # the same, inside kernels
 
 @dataclass
 class PartChoice:
-    """What happened to one part that needed more substeps than the budget (or, in mode "true",
-    the stiffest part): label ("part 3", or "body" for particles without a part id), material
+    """What happened to one part that needed more substeps than the budget (in mode "true": to
+    every moving part, reporting the budget it uses): label ("part 3", or "body" for particles without a part id), material
     name, particle count, largest E (Pa), substeps per frame it needs, the budget, the choice
     ("true", "rigid", "held" (rigid and touching fixed particles), "soften") and the factor
     applied to E (1 true, 0 rigid/held, < 1 softened)."""
