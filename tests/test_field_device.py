@@ -46,7 +46,7 @@ CASES = {
     "mixed sizes, some wider than the stencil cap": (dict(m=1500, seed=2, size_voxels=(0.1, 5.0)), {}),
     "centres outside the grid (robust-box normalisation)": (dict(m=1500, seed=3, lo=-0.2, hi=1.2), {}),
     "no pre-filter, tiny Gaussians": (dict(m=1500, seed=4, size_voxels=(0.01, 0.3)), {"filter_voxels": 0.0}),
-    "small chunks": (dict(m=1500, seed=5), {"chunk_pairs": 40000}),
+    "small chunks": (dict(m=1500, seed=5), {"chunk_pairs": 40000}),  # fast path only (the reference is slow so)
     "wide stencil cap": (dict(m=300, seed=6, size_voxels=(1.0, 8.0)), {"max_radius_voxels": 10}),
     "no features": (dict(m=500, seed=7, feats=0), {}),
 }
@@ -56,7 +56,8 @@ CASES = {
 def test_fast_field_equals_the_plain_reference(case):
     make, kw = CASES[case]
     args = _random_gaussians(**make)
-    _assert_same_field(splat_field(*args, 32, **kw), splat_field_reference(*args, 32, **kw))
+    ref_kw = {k: v for k, v in kw.items() if k != "chunk_pairs"}
+    _assert_same_field(splat_field(*args, 32, **kw), splat_field_reference(*args, 32, **ref_kw))
 
 
 def test_fast_field_batches_like_separate_grids():
