@@ -1,13 +1,16 @@
-"""Benchmark: end-to-end `pixie annotate` of a 100,000-Gaussian splat — wall time and peak RSS.
+"""Benchmark: end-to-end `pixie annotate` of a generated splat (default 100,000 Gaussians) — wall time and peak RSS.
 
-Prints the per-stage split (read, feature field, U-Net, transfer, write) of a fresh process running
-annotate exactly like the CLI, and the process's peak RSS. Baseline measured in the same run: the
-brute-force field (every Gaussian evaluated at every voxel centre) against the bounded-stencil field
-on a small case, with their maximum difference, and the brute force extrapolated to the 100k case.
-Needs only torch/numpy/scipy/plyfile (no warp, no rerun), so it runs on a bare GPU box:
+Times the real command (`python -m pixie_gs annotate IN OUT --device D`, a fresh process: imports,
+read, prepare, feature field, U-Net, transfer, write) and, in another fresh process running the same
+CLI code with timers around its steps, the per-stage split. Baselines measured in the same run: the
+plain reference field (`field_reference.splat_field_reference`) against the fast field on the
+prepared Gaussians of this splat, with their maximum difference, and the brute-force field (every
+Gaussian at every voxel centre) against the stencil on a small case. Needs only
+torch/numpy/scipy/plyfile (no warp, no rerun), so it runs on a bare GPU box:
 
-    python benchmarks/bench_annotate.py                 # this CPU (targets: ≤ 5 s, ≤ 4 GB)
-    python benchmarks/bench_annotate.py --device cuda   # GPU
+    python benchmarks/bench_annotate.py                              # this CPU, 100k
+    python benchmarks/bench_annotate.py --gaussians 1000000          # 1M (target ≤ 5 s on the 2-core CPU)
+    python benchmarks/bench_annotate.py --device cuda                # GPU (also times the CPU field)
 """
 from __future__ import annotations
 
@@ -44,48 +47,97 @@ def make_splat(path: Path, count: int, class_name: str, seed: int) -> None:
 
 
 def child(inp: str, out: str, device: str) -> None:
-    """Annotate like `pixie annotate` does, timing each stage; prints one JSON line."""
+    """Run `pixie annotate IN OUT --device D` in this process with timers around its steps; one JSON line."""
     t0 = time.perf_counter()
     import torch
 
-    from pixie_gs.annotate import get_model
+    import pixie_gs.annotate as annotate_mod
+    import pixie_gs.model.predict as predict_mod
+    import pixie_gs.prepare as prepare_mod
+    import pixie_gs.splat as splat_mod
+    from pixie_gs.cli.main import main as cli_main
     from pixie_gs.devices import resolve_torch_device
-    from pixie_gs.field import feature_grid
-    from pixie_gs.model.predict import run_model
-    from pixie_gs.splat import read_splat, write_splat
-    from pixie_gs.transfer import nearest_voxel_values, write_materials
 
     dev = resolve_torch_device(device)
     sync = torch.cuda.synchronize if dev.startswith("cuda") else (lambda: None)
     stages = {"imports": time.perf_counter() - t0}
+    info: dict = {}
+
+    def timed(module, name: str, stage: str):
+        inner = getattr(module, name)
+
+        def wrapper(*args, **kwargs):
+            t = time.perf_counter()
+            res = inner(*args, **kwargs)
+            sync()
+            stages[stage] = stages.get(stage, 0.0) + time.perf_counter() - t
+            if stage == "feature_field":
+                info["occupied_voxels"] = info.get("occupied_voxels", 0) + int(res.occupancy.sum())
+            if stage == "read":
+                info["gaussians"] = len(res)
+            return res
+        setattr(module, name, wrapper)
+
+    timed(splat_mod, "read_splat_valid", "read")
+    timed(prepare_mod, "prepare_cloud", "prepare")
+    timed(annotate_mod, "get_model", "load_checkpoint")
+    timed(predict_mod, "feature_grid", "feature_field")
+    timed(predict_mod, "_forward", "unet")
+    timed(splat_mod, "write_splat", "write")
     t = time.perf_counter()
-    cloud = read_splat(inp)
-    stages["read"] = time.perf_counter() - t
-    t = time.perf_counter()
-    loaded = get_model(None, dev)
-    stages["load_checkpoint"] = time.perf_counter() - t
-    t = time.perf_counter()
-    spec = loaded.features
-    grid = feature_grid(cloud, spec.resolution, list(spec.extra_names), dev, spec.filter_voxels, spec.margin)
-    sync()
-    stages["feature_field"] = time.perf_counter() - t
-    t = time.perf_counter()
-    values = torch.as_tensor(grid.values, device=dev)[None]
-    occ = torch.as_tensor(grid.occupancy, device=dev)[None]
-    classes, physical = run_model(loaded, values, grid.channels, occ)
-    classes, physical = classes[0].cpu().numpy(), physical[0].cpu().numpy()
-    stages["unet"] = time.perf_counter() - t
-    t = time.perf_counter()
-    mat, phys = nearest_voxel_values(grid.extra["means_unit"], classes, physical, grid.occupancy)
-    annotated = write_materials(cloud, mat, phys)
-    stages["transfer"] = time.perf_counter() - t
-    t = time.perf_counter()
-    write_splat(annotated, out)
-    stages["write"] = time.perf_counter() - t
+    if cli_main(["annotate", inp, out, "--device", device, "-q"]) != 0:
+        raise SystemExit("annotate failed")
+    command = time.perf_counter() - t
+    stages["transfer_and_other"] = command - sum(v for k, v in stages.items() if k != "imports")
     stages["total_in_process"] = time.perf_counter() - t0
     use = resource.getrusage(resource.RUSAGE_SELF)
-    print(json.dumps({"cpu_s": use.ru_utime + use.ru_stime, "gaussians": len(cloud), "device": dev, "stages_s": stages,
-                      "occupied_voxels": int(grid.occupancy.sum())}))
+    print(json.dumps({"cpu_s": use.ru_utime + use.ru_stime, "device": dev, "stages_s": stages, **info}))
+
+
+def field_baseline(inp: str, device: str) -> dict:
+    """Fast field vs the plain reference on the prepared Gaussians of the file's largest object
+    (the grid `pixie annotate` builds), on `device` (and on the CPU too when `device` is CUDA)."""
+    import numpy as np
+    import torch
+
+    from pixie_gs.annotate import get_model
+    from pixie_gs.devices import resolve_torch_device
+    from pixie_gs.field import cloud_tensors, prepare_gaussians, splat_field
+    from pixie_gs.field_reference import splat_field_reference
+    from pixie_gs.prepare import prepare_cloud
+    from pixie_gs.prepare.updir import rotation_to_z
+    from pixie_gs.splat import read_splat
+
+    dev = resolve_torch_device(device)
+    spec = get_model(None, "cpu").features
+    cloud, scene = prepare_cloud(read_splat(inp))
+    obj = max(scene.objects, key=lambda o: int((cloud.get("object_id") == o.object_id).sum()))
+    part = cloud.subset(np.nonzero(cloud.get("object_id") == obj.object_id)[0])
+    box = (np.asarray(obj.fit_box_up[0]), np.asarray(obj.fit_box_up[1]))
+    rot = rotation_to_z(np.asarray(scene.up_vector, np.float64))
+
+    def run(fn, on: str) -> tuple[float, tuple]:
+        g = cloud_tensors(part, list(spec.extra_names), on, rot)
+        means, cov, alpha, feats, _, _ = prepare_gaussians(g, spec.margin, box)
+        sync = torch.cuda.synchronize if on.startswith("cuda") else (lambda: None)
+        fn(means, cov, alpha, feats, spec.resolution, filter_voxels=spec.filter_voxels)  # warm-up
+        sync()
+        best = float("inf")
+        for _ in range(2):
+            t = time.perf_counter()
+            res = fn(means, cov, alpha, feats, spec.resolution, filter_voxels=spec.filter_voxels)
+            sync()
+            best = min(best, time.perf_counter() - t)
+        return best, tuple(r.cpu() for r in res)
+
+    fast_s, fast = run(splat_field, dev)
+    ref_s, ref = run(splat_field_reference, dev)
+    out = {"gaussians": len(part), "device": dev, "fast_s": fast_s, "reference_s": ref_s,
+           "max_abs_density_diff": float((fast[0] - ref[0]).abs().max()), "max_density": float(ref[0].max())}
+    if dev.startswith("cuda"):
+        out["cpu_fast_s"], cpu = run(splat_field, "cpu")
+        out["max_abs_density_diff_cuda_vs_cpu"] = float((fast[0] - cpu[0]).abs().max())
+    return out
 
 
 def brute_force_baseline(count: int, resolution: int) -> dict:
@@ -127,48 +179,58 @@ def main() -> int:
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda", "auto"])
     ap.add_argument("--gaussians", type=int, default=100_000)
     ap.add_argument("--object", default="tree", help="generated class to annotate")
-    ap.add_argument("--repeats", type=int, default=2, help="fresh processes to time (best and all printed)")
+    ap.add_argument("--repeats", type=int, default=2, help="fresh `pixie annotate` processes to time (best and all printed)")
+    ap.add_argument("--no-brute", action="store_true", help="skip the brute-force baseline (~10 s of CPU)")
     ap.add_argument("--child", nargs=3, metavar=("IN", "OUT", "DEVICE"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         child(*args.child)
         return 0
+    load_before = f"{os.getloadavg()[0]:.2f}"
     with tempfile.TemporaryDirectory() as tmp:
         inp, out = Path(tmp) / "in.ply", Path(tmp) / "out.ply"
         make_splat(inp, args.gaussians, args.object, 4242)
-        runs = []
-        load_before = f"{os.getloadavg()[0]:.2f}"
-        for _ in range(args.repeats):
-            before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        walls = []
+        for _ in range(args.repeats):  # the real command, a fresh process each time
             t = time.perf_counter()
-            res = subprocess.run([sys.executable, __file__, "--child", str(inp), str(out), args.device],
-                                 capture_output=True, text=True, cwd=ROOT)
-            wall = time.perf_counter() - t
+            res = subprocess.run([sys.executable, "-m", "pixie_gs", "annotate", str(inp), str(out), "--device",
+                                  args.device, "-q"], capture_output=True, text=True, cwd=ROOT)
+            walls.append(time.perf_counter() - t)
             if res.returncode:
                 print(res.stderr, file=sys.stderr)
                 return 1
-            peak_kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-            info = json.loads(res.stdout.strip().splitlines()[-1])
-            info.update(wall_s=wall, peak_rss_gb=peak_kb / 2 ** 20, rss_grew=peak_kb > before)
-            runs.append(info)
-    best = min(runs, key=lambda r: r["wall_s"])
+        peak_kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        t = time.perf_counter()
+        res = subprocess.run([sys.executable, __file__, "--child", str(inp), str(out), args.device],
+                             capture_output=True, text=True, cwd=ROOT)
+        staged_wall = time.perf_counter() - t
+        if res.returncode:
+            print(res.stderr, file=sys.stderr)
+            return 1
+        info = json.loads(res.stdout.strip().splitlines()[-1])
+        field = field_baseline(str(inp), args.device)
     print(f"load average before/after: {load_before} / {os.getloadavg()[0]:.2f} (machine shared: wall times vary)")
-    print(f"annotate {best['gaussians']} Gaussians ({args.object}) on {best['device']}, "
+    print(f"pixie annotate {info['gaussians']} Gaussians ({args.object}) --device {args.device} ({info['device']}), "
           f"{os.cpu_count()} CPU cores visible, torch threads {__import__('torch').get_num_threads()}")
-    print(f"  end-to-end wall (fresh process, imports included): best {best['wall_s']:.2f} s, "
-          f"all {[round(r['wall_s'], 2) for r in runs]}  (target ≤ 5 s on the 2-core CPU)")
-    print(f"  process CPU time (user+sys, both threads): {[round(r['cpu_s'], 2) for r in runs]} s")
-    print(f"  peak RSS: {max(r['peak_rss_gb'] for r in runs):.2f} GB  (target ≤ 4 GB)")
-    print("  stages (best run): " + ", ".join(f"{k} {v:.2f} s" for k, v in best["stages_s"].items()))
-    print(f"  occupied voxels: {best['occupied_voxels']}")
-    base = brute_force_baseline(2000, 32)
-    ratio = base["brute_force_s"] / base["stencil_s"]
-    print(f"baseline (same run): brute-force field, {base['gaussians']} Gaussians × {base['resolution']}³ voxels: "
-          f"{base['brute_force_s']:.2f} s vs stencil {base['stencil_s']:.3f} s → stencil {ratio:.0f}× faster; "
-          f"max |Δσ| = {base['max_abs_density_diff']:.2e}")
-    extrapolated = base["brute_force_s_per_gaussian_voxel"] * best["gaussians"] * 64 ** 3
-    print(f"  brute force extrapolated to {best['gaussians']} Gaussians × 64³: ~{extrapolated:.0f} s vs stencil "
-          f"{best['stages_s']['feature_field']:.2f} s (ratio ~{extrapolated / best['stages_s']['feature_field']:.0f}×)")
+    print(f"  end-to-end wall of the command (fresh process, imports included): best {min(walls):.2f} s, "
+          f"all {[round(w, 2) for w in walls]}  (targets: ≤ 5 s for 1M on the 2-core CPU)")
+    print(f"  peak RSS of those processes: {peak_kb / 2 ** 20:.2f} GB")
+    print(f"  staged run (same CLI code with timers, wall {staged_wall:.2f} s, process CPU {info['cpu_s']:.2f} s): "
+          + ", ".join(f"{k} {v:.2f}" for k, v in info["stages_s"].items()) + " s")
+    print(f"  occupied voxels: {info.get('occupied_voxels')}")
+    ratio = field["reference_s"] / field["fast_s"]
+    print(f"baseline (same run): feature field of the prepared object ({field['gaussians']} Gaussians, 64³) on "
+          f"{field['device']}: plain reference {field['reference_s']:.3f} s vs fast {field['fast_s']:.3f} s → "
+          f"{ratio:.1f}× faster; max |Δσ| = {field['max_abs_density_diff']:.2e} (max σ {field['max_density']:.3g})")
+    if "cpu_fast_s" in field:
+        print(f"  same field, fast path on this host's CPU: {field['cpu_fast_s']:.3f} s "
+              f"(CUDA {field['cpu_fast_s'] / field['fast_s']:.1f}× faster); max |Δσ| CUDA vs CPU = "
+              f"{field['max_abs_density_diff_cuda_vs_cpu']:.2e}")
+    if not args.no_brute:
+        base = brute_force_baseline(2000, 32)
+        print(f"  brute-force field, {base['gaussians']} Gaussians × {base['resolution']}³ voxels: "
+              f"{base['brute_force_s']:.2f} s vs stencil {base['stencil_s']:.3f} s "
+              f"({base['brute_force_s'] / base['stencil_s']:.0f}×); max |Δσ| = {base['max_abs_density_diff']:.2e}")
     return 0
 
 

@@ -83,14 +83,15 @@ def voxel_centres(n: int) -> np.ndarray:
     return np.stack(np.meshgrid(c, c, c, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
-def entry_rows(m):
+def entry_rows(m, xp=None):
     """(nine float64 entry rows a_ij (row 3i+j), array module, back-conversion) of a batch (M,3,3).
 
     CPU tensors and numpy arrays are computed with numpy (about 5× less CPU than torch's threaded
-    element-wise kernels on a busy 2-core machine); CUDA tensors stay in torch."""
+    element-wise kernels on a busy 2-core machine); CUDA tensors stay in torch, and so do CPU
+    tensors when `xp` is torch."""
     import torch
 
-    if isinstance(m, np.ndarray) or m.device.type == "cpu":
+    if isinstance(m, np.ndarray) or (m.device.type == "cpu" and xp is not torch):
         a = np.asarray(m.numpy() if isinstance(m, torch.Tensor) else m, dtype=np.float64).reshape(-1, 9)
         back = torch.from_numpy if isinstance(m, torch.Tensor) else (lambda x: x)
         return list(np.ascontiguousarray(a.T)), np, back

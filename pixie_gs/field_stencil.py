@@ -62,9 +62,10 @@ def _basis(off: np.ndarray) -> np.ndarray:
                      o[:, 1] * o[:, 2], o[:, 0], o[:, 1], o[:, 2], np.ones(len(o), np.float32)])
 
 
-def _geometry(means, covariances, n: int, filter_voxels: float, cutoff_sigma: float, max_radius_voxels: int):
-    """Per-Gaussian (coef (M,10) float32, base voxel (M,3) int64, group key (M,) int64), numpy for
-    numpy input, torch on the input's device for CUDA tensors.
+def _geometry(means, covariances, n: int, filter_voxels: float, cutoff_sigma: float, max_radius_voxels: int,
+              xp=None):
+    """Per-Gaussian (coef (M,10) float32, base voxel (M,3) int64, group key (M,) int64): numpy for
+    numpy input, torch on the input's device for CUDA tensors (or any tensors when `xp` is torch).
 
     maha(o) = coef · [o², oₓo_y, oₓo_z, o_yo_z, o, 1] for an integer voxel offset o from the base voxel
     (the voxel holding the centre): h² oᵀPo + 2h oᵀPδ + δᵀPδ with P = (Σ + (filter·h)² I)⁻¹ and δ the
@@ -74,7 +75,7 @@ def _geometry(means, covariances, n: int, filter_voxels: float, cutoff_sigma: fl
     from .field import eigval_rows, entry_rows, inverse_rows
 
     h = 1.0 / n
-    rows, xp, _ = entry_rows(covariances)
+    rows, xp, _ = entry_rows(covariances, xp)
     s2 = (filter_voxels * h) ** 2
     rows = [r + s2 if i in (0, 4, 8) else r for i, r in enumerate(rows)]
     p = inverse_rows(rows, xp)
@@ -117,8 +118,9 @@ def _group_offsets(key: int) -> np.ndarray:
 
 def stencil_field(means, covariances, alphas, features, resolution: int = 64, filter_voxels: float = 0.5,
                   cutoff_sigma: float = 3.0, max_radius_voxels: int = 6, batch_index=None, batch_size: int = 1,
-                  chunk_pairs: int | None = None):
-    """`field.splat_field` (same arguments and result) on CPU (numpy + scipy) or CUDA (torch)."""
+                  chunk_pairs: int | None = None, backend: str | None = None):
+    """`field.splat_field` (same arguments and result) on CPU (numpy + scipy) or CUDA (torch);
+    `backend` "torch" forces the CUDA path's torch code on any device (tests run it on CPU)."""
     import torch
 
     n = int(resolution)
@@ -130,8 +132,8 @@ def stencil_field(means, covariances, alphas, features, resolution: int = 64, fi
     if m == 0:
         z = torch.zeros(batch_size, n ** 3, device=dev)
         return z, torch.zeros(batch_size, n ** 3, f, device=dev)
-    if dev.type == "cuda":
-        acc = _cuda_sums(means, covariances, alphas, features, n, filter_voxels, cutoff_sigma, max_radius_voxels,
+    if dev.type == "cuda" or backend == "torch":
+        acc = _torch_sums(means, covariances, alphas, features, n, filter_voxels, cutoff_sigma, max_radius_voxels,
                          batch_index, batch_size, chunk_pairs or CUDA_CANDIDATES_PER_CHUNK)
     else:
         acc = torch.from_numpy(_cpu_sums(
@@ -202,15 +204,16 @@ def _cpu_sums(means, cov, alphas, feats, n, filter_voxels, cutoff_sigma, max_rad
     return acc
 
 
-def _cuda_sums(means, covariances, alphas, features, n, filter_voxels, cutoff_sigma, max_radius_voxels, batch_index,
-               batch_size, chunk):
-    """(B·np³, 1+F) float32 padded-grid sums on the tensors' CUDA device (torch index_add_)."""
+def _torch_sums(means, covariances, alphas, features, n, filter_voxels, cutoff_sigma, max_radius_voxels, batch_index,
+                batch_size, chunk):
+    """(B·np³, 1+F) float32 padded-grid sums on the tensors' device with torch (index_add_): the CUDA
+    path (the tests also run it on CPU tensors, so CI without a GPU checks its arithmetic)."""
     import torch
 
     dev = means.device
     pad = int(math.ceil(max_radius_voxels - 0.5 + HALF_DIAGONAL))
     np_ = n + 2 * pad
-    coef, base, key = _geometry(means, covariances, n, filter_voxels, cutoff_sigma, max_radius_voxels)
+    coef, base, key = _geometry(means, covariances, n, filter_voxels, cutoff_sigma, max_radius_voxels, torch)
     bidx = torch.zeros(len(means), dtype=torch.long, device=dev) if batch_index is None else batch_index.long()
     base_flat = ((bidx * np_ + base[:, 0] + pad) * np_ + base[:, 1] + pad) * np_ + base[:, 2] + pad
     alpha = alphas.float()[:, None]
