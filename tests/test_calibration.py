@@ -54,6 +54,26 @@ def test_temperature_fit_recovers_the_temperature_that_made_the_labels():
     assert before["ece"] > 0.1 and after["ece"] < 0.02
 
 
+def test_logistic_map_recovers_a_known_link():
+    """Correct with probability exactly p_max whatever the in-distribution factor: the fitted map must be
+    the identity on logit p (a ≈ 1, b ≈ 0, c ≈ 0) and bring the ECE of the ind-scaled confidence down."""
+    cal = _script()
+    rng = np.random.default_rng(2)
+    outs = []
+    for _ in range(20):
+        z = rng.normal(0, 3, (2000, 7))
+        p = np.exp(z - z.max(1, keepdims=True))
+        p /= p.sum(1, keepdims=True)
+        right = rng.random(len(z)) < p.max(1)
+        true = np.where(right, p.argmax(1), (p.argmax(1) + 1) % 7)
+        outs.append(cal.Outputs(z, true, float(rng.uniform(0.01, 1.0)), "synthetic"))
+    a, b, c = cal.fit_logistic(outs)
+    assert a == pytest.approx(1.0, abs=0.05) and abs(b) < 0.05 and abs(c) < 0.05
+    before = cal.reliability(*cal.confidence_and_correct(outs))["ece"]
+    after = cal.reliability(*cal.logistic_confidence(outs, np.array([a, b, c])))["ece"]
+    assert before > 0.2 and after < 0.02
+
+
 def test_script_confidence_is_what_annotate_writes():
     """The diagram scores the confidence users get: same classes and confidence as `annotate_cloud`."""
     from pixie_gs.annotate import annotate_cloud
