@@ -69,7 +69,8 @@ def _geometry(means, covariances, n: int, filter_voxels: float, cutoff_sigma: fl
 
     maha(o) = coef · [o², oₓo_y, oₓo_z, o_yo_z, o, 1] for an integer voxel offset o from the base voxel
     (the voxel holding the centre): h² oᵀPo + 2h oᵀPδ + δᵀPδ with P = (Σ + (filter·h)² I)⁻¹ and δ the
-    base voxel's centre minus the mean, as in the reference (here in float64, rounded once). Group keys:
+    base voxel's centre minus the mean, as in the reference (P in float64 rounded once to float32, δ and
+    the terms in float32). Group keys:
     8·(reach in quarter voxels) + octant for ordinary Gaussians, −(reach in half voxels) for the ones
     keeping the reference's ball (reach above the cap, or centre outside the grid)."""
     from .field import eigval_rows, entry_rows, inverse_rows
@@ -78,18 +79,21 @@ def _geometry(means, covariances, n: int, filter_voxels: float, cutoff_sigma: fl
     rows, xp, _ = entry_rows(covariances, xp)
     s2 = (filter_voxels * h) ** 2
     rows = [r + s2 if i in (0, 4, 8) else r for i, r in enumerate(rows)]
-    p = inverse_rows(rows, xp)
+    p64 = inverse_rows(rows, xp)
     reach = cutoff_sigma * xp.sqrt(eigval_rows(rows, xp)[2]) * n  # voxels
     cap = max_radius_voxels - 0.5
+    # from here float32, as the reference: P rounded once, δ and the linear terms in float32
     if xp is np:
-        mu = [np.asarray(means[:, i], np.float64) for i in range(3)]
+        p = [r.astype(np.float32) for r in p64]
+        mu = [np.ascontiguousarray(means[:, i], np.float32) for i in range(3)]
     else:
-        mu = list(means.double().t())
+        p = [r.float() for r in p64]
+        mu = list(means.float().t().contiguous())
     base = [xp.floor(c * n) for c in mu]
     inside = (base[0] >= 0) & (base[0] <= n - 1) & (base[1] >= 0) & (base[1] <= n - 1) & (base[2] >= 0) & (base[2] <= n - 1)
     base = [b.clip(0, n - 1) for b in base]
     d = [(b + 0.5) * h - c for b, c in zip(base, mu)]  # voxel centre minus the mean (unit cube)
-    pd = [2 * h * (p[3 * i] * d[0] + p[3 * i + 1] * d[1] + p[3 * i + 2] * d[2]) for i in range(3)]
+    pd = [(p[3 * i] * d[0] + p[3 * i + 1] * d[1] + p[3 * i + 2] * d[2]) * (2 * h) for i in range(3)]
     cst = (d[0] * pd[0] + d[1] * pd[1] + d[2] * pd[2]) / (2 * h)
     hh = h * h
     cols = [p[0] * hh, p[4] * hh, p[8] * hh, 2 * hh * p[1], 2 * hh * p[2], 2 * hh * p[5], pd[0], pd[1], pd[2], cst]

@@ -129,6 +129,19 @@ def test_generated_object_turned_and_boxed_matches_the_reference():
     _assert_same_field(splat_field(means, cov, alpha, feats, 64), splat_field_reference(means, cov, alpha, feats, 64))
 
 
+@pytest.mark.parametrize("box", [None, ((-0.1, -0.2, 0.0), (0.2, 0.1, 0.3))])
+def test_prepare_gaussians_numpy_and_torch_paths_agree(box):
+    """The CPU (numpy) and CUDA (torch, run here on CPU tensors) normalisation give the same Gaussians."""
+    from pixie_gs.field import _prepare_gaussians_numpy, _prepare_gaussians_torch
+
+    g = cloud_tensors(_generated(5000, "soda_cans"), [], "cpu", up_rotation("-y"))
+    got, want = _prepare_gaussians_numpy(g, 0.05, box), _prepare_gaussians_torch(g, 0.05, box)
+    assert got[4] == pytest.approx(want[4], rel=1e-12)
+    for a, b in zip(got[:4] + got[5:], want[:4] + want[5:]):
+        assert a.shape == b.shape and a.dtype == b.dtype
+        assert torch.allclose(a, b, rtol=1e-6, atol=1e-6)
+
+
 def test_cpu_annotate_leaves_cuda_alone(tmp_path):
     """A CPU feature grid and U-Net pass do not initialise CUDA nor import Warp (lazy imports)."""
     code = (
