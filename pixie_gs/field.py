@@ -92,9 +92,9 @@ def entry_rows(m, xp=None):
     import torch
 
     if isinstance(m, np.ndarray) or (m.device.type == "cpu" and xp is not torch):
-        a = np.asarray(m.numpy() if isinstance(m, torch.Tensor) else m, dtype=np.float64).reshape(-1, 9)
+        a = np.asarray(m.numpy() if isinstance(m, torch.Tensor) else m).reshape(-1, 9)
         back = torch.from_numpy if isinstance(m, torch.Tensor) else (lambda x: x)
-        return list(np.ascontiguousarray(a.T)), np, back
+        return [a[:, k].astype(np.float64) for k in range(9)], np, back  # strided reads: no (M,9) transpose
     return list(m.double().reshape(-1, 9).t().contiguous()), torch, (lambda x: x)
 
 
