@@ -1,18 +1,22 @@
 """Which way is up, from a capture's shape and from how well each part of it was seen.
 
-Two questions, answered separately:
+Three kinds of evidence, tried in this order:
 
-* the **axis** (up up to sign). Captures and objects are either *flat* (a table top, a floor with
-  things on it, a donut: the thinnest principal direction is vertical) or *tall* (a guitar on a
-  stand, a bottle, a tree: the longest principal direction is vertical). A single plane holding a
-  large share of the opaque Gaussians near the thin axis (a table top, a floor) refines it.
-* the **sign**. Cameras are above the horizon in nearly every capture (people hold phones at eye
-  height; synthetic captures orbit the upper hemisphere), so upper surfaces are seen by more views
-  from closer and end up with finer Gaussians, while the underside is coarse or missing. The
-  median Gaussian size in the lowest quarter versus the highest quarter along the axis gives the
-  sign when the difference is clear. Without that evidence (meshes converted with one Gaussian
-  size, generated objects) the sign comes from support: the flat base an object stands on
-  (gravity.score_direction), and for tall objects the low centre of mass (the wide, heavy end down).
+* **capture evidence** (a trained capture: its opacities spread, `looks_captured`). The *axis* (up
+  up to sign): captures are either *flat* (a table top, a floor with things on it, a donut: the
+  thinnest principal direction is vertical) or *tall* (a guitar on a stand, a bottle, a tree: the
+  longest principal direction is vertical); a single plane holding a large share of the opaque
+  Gaussians near the thin axis (a table top, a floor) refines it. The *sign*: cameras are above
+  the horizon in nearly every capture (people hold phones at eye height; synthetic captures orbit
+  the upper hemisphere), so upper surfaces are seen by more views from closer and end up with
+  finer Gaussians, while the underside is coarse or missing. The median Gaussian size in the
+  lowest quarter versus the highest quarter along the axis gives the sign when the difference is
+  clear.
+* a **floor or table** the content stands on (`_floor`: a plane holding many Gaussians, wider than
+  what stands on it, nothing below it): up is its normal towards the content.
+* the **object's own shape** (converted meshes with one Gaussian size, generated objects, captures
+  without a clear size cue): candidate bases from the convex hull and the principal axes, ranked
+  by a small learned scorer (upright.py).
 
 All statistics run on a fixed-size opacity-weighted sample, so the cost does not grow with N.
 """
@@ -22,15 +26,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .gravity import flat_normals, ransac_planes, score_direction
+from .gravity import GROUND_SHARE, GROUND_WIDER, flat_normals, ransac_planes, score_direction
+from .upright import estimate_upright
 
 TALL = 2.0  # longest robust span ≥ this × the middle one: a tall object, up along its long axis
-FLAT = 0.8  # thinnest span ≤ this × the middle one: a flat capture, up along its thin axis
 PLANE_SHARE = 0.3  # a plane holding this share of the opaque Gaussians defines horizontal
 PLANE_NEAR_DEG = 25.0  # … when its normal is within this angle of the thin axis
-PLANE_EXTREME = 0.15  # a dominant plane this near one end of the content is a floor: the content is above it
-SHARP_CLEAR = 0.15
-BASE_CLEAR = 0.02  # flat-base support score (gravity.score_direction) that counts as a base  # nats: the size difference (bottom − top quarter) that decides the sign
+SHARP_CLEAR = 0.15  # nats: the size difference (bottom − top quarter) that decides the sign
+CAPTURE_SPREAD = 0.2  # opacity interquartile range from which a cloud counts as a trained capture
 SAMPLE = 20_000
 
 
@@ -68,27 +71,6 @@ def sharpness_sign(points: np.ndarray, log_scales: np.ndarray, u: np.ndarray) ->
     return 0.5 * (diffs[0] + diffs[1])
 
 
-def _mass_sign(points: np.ndarray, weights: np.ndarray, u: np.ndarray) -> float:
-    """> 0 when the centre of mass lies below the middle of the extent along u (heavy end down)."""
-    h = points @ u
-    lo, hi = np.percentile(h, [2, 98])
-    return float(0.5 * (lo + hi) - np.average(h, weights=weights)) / max(hi - lo, 1e-12)
-
-
-def _wide_end_sign(points: np.ndarray, u: np.ndarray) -> float:
-    """> 0 when the lowest 15 % along u is wider (median distance from the axis) than the highest
-    15 %: the wide end down, as a bottle or a guitar on its stand stands."""
-    c = points - points.mean(axis=0)
-    h = c @ u
-    lo, hi = np.percentile(h, [2, 98])
-    radial = np.linalg.norm(c - np.outer(h, u), axis=1)
-    low, high = h < lo + 0.15 * (hi - lo), h > hi - 0.15 * (hi - lo)
-    if low.sum() < 10 or high.sum() < 10:
-        return 0.0
-    a, b = float(np.median(radial[low])), float(np.median(radial[high]))
-    return (a - b) / max(a, b, 1e-12)
-
-
 def estimate_orientation(points: np.ndarray, alphas: np.ndarray, rotations: np.ndarray, log_scales: np.ndarray,
                          spacing: float, seed: int = 0) -> Orientation:
     """Up of a cloud (floaters removed): points (N,3), alphas (N,), rotations (N,4) w,x,y,z,
@@ -103,16 +85,30 @@ def estimate_orientation(points: np.ndarray, alphas: np.ndarray, rotations: np.n
     opaque = a > 0.5
     if opaque.sum() < 0.2 * len(p):
         opaque = a >= np.median(a)
-    vecs, spans = _robust_axes(p[opaque], w[opaque])
     size = float(np.linalg.norm(np.percentile(p, 99, axis=0) - np.percentile(p, 1, axis=0))) or 1.0
     tol = max(1.5 * spacing, 0.01 * size)
-    plane_pos = None
+    if looks_captured(a):
+        found = _capture_evidence(p, w, ls, opaque, tol, rng)
+        if found is not None:
+            return found
+    floor = _floor(p[opaque], w[opaque], rotations[pick][opaque], ls[opaque], tol, rng)
+    if floor is not None:
+        return Orientation(floor, 1.0, "floor plane, content above it")
+    shape = estimate_upright(p, a, rotations[pick], ls, spacing, seed=seed)
+    return Orientation(shape.up, shape.confidence, f"object shape (learned scorer over {shape.candidates} candidate bases)")
+
+
+def _capture_evidence(p: np.ndarray, w: np.ndarray, ls: np.ndarray, opaque: np.ndarray, tol: float,
+                      rng: np.random.Generator) -> "Orientation | None":
+    """Axis from the principal spans (tall: long axis; else thin axis, refined by a dominant plane),
+    sign from finer Gaussians on top; None when the size difference is not clear."""
+    vecs, spans = _robust_axes(p[opaque], w[opaque])
     if spans[2] >= TALL * spans[1]:
         u, kind = vecs[:, 2], "long axis"
     else:
         u, kind = vecs[:, 0], "thin axis"
         planes = ransac_planes(p[opaque], tol, rng, planes=3, hypotheses=300)
-        best_share, plane_pos = 0.0, None
+        best_share = 0.0
         for nrm in planes:
             if abs(float(nrm @ u)) < np.cos(np.radians(PLANE_NEAR_DEG)):
                 continue
@@ -122,33 +118,35 @@ def estimate_orientation(points: np.ndarray, alphas: np.ndarray, rotations: np.n
             share = float(np.mean(np.abs(d - 0.5 * (edges[k] + edges[k + 1])) < tol))
             if share >= PLANE_SHARE and share > best_share:
                 best_share, u, kind = share, nrm, "dominant plane"
-                lo_d, hi_d = np.percentile(d, [2, 98])
-                plane_pos = (0.5 * (edges[k] + edges[k + 1]) - lo_d) / max(hi_d - lo_d, 1e-12)
     u = u / np.linalg.norm(u)
     flat_axis_conf = 1.0 - (spans[0] / spans[1] if kind != "long axis" else spans[1] / spans[2])
     sharp = sharpness_sign(p, ls, u)
-    if abs(sharp) >= SHARP_CLEAR:
-        sign, how = np.sign(sharp), "finer Gaussians on top (seen from above)"
-        sign_conf = min(1.0, abs(sharp) / (2 * SHARP_CLEAR))
-    elif plane_pos is not None and min(plane_pos, 1.0 - plane_pos) < PLANE_EXTREME:
-        sign, how, sign_conf = (1.0 if plane_pos < 0.5 else -1.0), "content on one side of the plane", 1.0
-    else:  # no capture evidence: the best flat base among the principal directions, else the heavy end
-        normals, flatness = flat_normals(rotations[pick], log_scales[pick])
-        axes = (u,) if kind == "long axis" else (u, vecs[:, 0], vecs[:, 1], vecs[:, 2])  # tall: keep its axis
-        cands = [sg * v for v in axes for sg in (1.0, -1.0)]
-        scored = [score_direction(p, w, normals, flatness, c, tol) for c in cands]
-        best = max(scored, key=lambda r: r.score)
-        mass = _wide_end_sign(p, u)
-        tall_by_mass = kind == "long axis" and abs(mass) > 0.1
-        if best.score >= BASE_CLEAR and not (tall_by_mass and min(r.score for r in scored) > 0.5 * best.score):
-            rival = max((r.score for r in scored if float(r.up @ best.up) < np.cos(np.radians(20.0))), default=0.0)
-            u, kind = best.up / np.linalg.norm(best.up), ("long axis" if kind == "long axis" else "flat base")
-            sign, how, sign_conf = 1.0, "the side it stands on", 1.0 - rival / best.score
-            flat_axis_conf = 0.5
-        elif tall_by_mass:
-            sign, how, sign_conf = np.sign(mass), "wide end down", min(1.0, abs(mass) / 0.3)
-        else:
-            sign, how, sign_conf = 1.0, "no sign evidence", 0.0
-    up = float(sign) * u
+    if abs(sharp) < SHARP_CLEAR:
+        return None
+    sign_conf = min(1.0, abs(sharp) / (2 * SHARP_CLEAR))
     confidence = float(np.clip(min(max(flat_axis_conf, 0.0) * 2, 1.0) * sign_conf, 0.0, 1.0))
-    return Orientation(up, confidence, f"{kind}, {how}")
+    return Orientation(float(np.sign(sharp)) * u, confidence, f"{kind}, finer Gaussians on top (seen from above)")
+
+
+def looks_captured(alphas: np.ndarray) -> bool:
+    """Whether opacities spread as a trained capture's do (interquartile range ≥ CAPTURE_SPREAD);
+    converted meshes and generated objects have one opacity, so their Gaussian sizes say nothing
+    about where the cameras were."""
+    q1, q3 = np.percentile(alphas, [25, 75])
+    return bool(q3 - q1 >= CAPTURE_SPREAD)
+
+
+def _floor(points: np.ndarray, weights: np.ndarray, rotations: np.ndarray, log_scales: np.ndarray, tol: float,
+           rng: np.random.Generator) -> "np.ndarray | None":
+    """Up of a floor or table the content stands on (a RANSAC plane that gravity.score_direction
+    calls ground: ≥ GROUND_SHARE of the Gaussians, wider than what stands on it, nothing below),
+    pointing towards the content; None when there is none."""
+    normals, flatness = flat_normals(rotations, log_scales)
+    best = None
+    for nrm in ransac_planes(points, tol, rng, planes=3, hypotheses=300):
+        for c in (nrm, -nrm):
+            s = score_direction(points, weights, normals, flatness, c, tol)
+            if s.support >= GROUND_SHARE and s.footprint_ratio > GROUND_WIDER and s.stable and \
+                    (best is None or s.score > best.score):
+                best = s
+    return None if best is None else best.up / np.linalg.norm(best.up)

@@ -1,0 +1,168 @@
+"""Retrain the upright scorer (pixie_gs/data/upright_scorer.json) used by pixie_gs/prepare/upright.py.
+
+Objects of every class from the dataset's TRAIN seeds (object_seed(SEED, "train", i)), 4,000–20,000
+Gaussians, each turned by a random rotation, go through the same steps as `prepare` (floater
+mask, robust spacing) and give their up candidates and descriptors; a candidate within 10° of the
+true up (the rotation applied to +z) is a right answer. Objects the generator laid off their base
+(a can or bottle on its side, a leaning cushion: a quarter of cans, a fifth of bottles, 30 % of
+cushions) are left out of the fit: their shape alone cannot say they are not standing, and
+teaching both makes every tall cylinder a coin toss. A one-hidden-layer perceptron is fitted
+so that the right candidates of each object win the softmax over its candidates (listwise
+cross-entropy, Adam, weight decay). The VAL seeds report the held-out accuracy; the TEST seeds
+(benchmarks/bench_prepare.py) are never looked at here.
+
+usage: python scripts/train_upright.py [--objects 936] [--val 156] [--cache /tmp/upright2.npz]
+(about 10 minutes on a 2-core CPU, most of it building the objects; --cache reuses the descriptors)
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+RIGHT_DEG = 10.0
+SEED = 0
+
+
+def object_candidates(split: str, count: int, seed: int = SEED) -> list[dict]:
+    """Per object: class, candidate ups (K,3), descriptors (K,F), true up (3,), and whether the
+    generator laid it off its base (a can or bottle lying on its side, a leaning cushion)."""
+    from scipy.spatial.transform import Rotation
+
+    from pixie_gs.dataset.assemble import build_object
+    from pixie_gs.dataset.generate import object_seed
+    from pixie_gs.dataset.labels import load_class_table
+    from pixie_gs.prepare.density import floater_mask, robust_spacing
+    from pixie_gs.prepare.upright import candidates
+    from pixie_gs.progress import progress
+
+    table = load_class_table()
+    names = sorted(table)
+    rng = np.random.default_rng([seed, 7 if split == "train" else 8])
+    out = []
+    for i in progress(range(count), desc=f"{split} objects", unit="object"):
+        name = names[i % len(names)]
+        cloud, record = build_object(table[name], object_seed(seed, split, i), int(rng.integers(4000, 20001)))
+        R = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
+        x = cloud.means.astype(np.float64) @ R.T
+        cloud.means = x.astype(np.float32)
+        cloud.set_covariances(R @ cloud.covariances() @ R.T)
+        alpha = cloud.opacities.astype(np.float64)
+        spacing = robust_spacing(x)
+        keep = ~floater_mask(x, alpha, spacing)[0]
+        cands = candidates(x[keep], alpha[keep], cloud.rotations[keep], cloud.log_scales[keep], spacing)
+        out.append({"name": name, "ups": np.stack([c.up for c in cands]),
+                    "features": np.stack([c.features for c in cands]), "truth": R @ np.array([0.0, 0.0, 1.0]),
+                    "off_base": bool(record["shape"].get("lying") or record["shape"].get("leaning"))})
+    return out
+
+
+def pack(objs: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(features (B,K,F) zero-padded, candidate mask (B,K), right-answer mask (B,K))."""
+    k = max(len(o["ups"]) for o in objs)
+    f = objs[0]["features"].shape[1]
+    X = np.zeros((len(objs), k, f))
+    M = np.zeros((len(objs), k), bool)
+    Y = np.zeros((len(objs), k), bool)
+    for i, o in enumerate(objs):
+        n = len(o["ups"])
+        X[i, :n], M[i, :n] = o["features"], True
+        Y[i, :n] = o["ups"] @ o["truth"] > np.cos(np.radians(RIGHT_DEG))
+    return X, M, Y
+
+
+def fit(X: np.ndarray, M: np.ndarray, Y: np.ndarray, hidden: int, decay: float, epochs: int, seed: int = 0) -> dict:
+    """Listwise softmax training of score(x) = w2·tanh(W1ᵀ x̂ + b1) + b2 (x̂ standardised)."""
+    import torch
+
+    torch.manual_seed(seed)
+    torch.set_num_threads(1)  # a tiny model: threads only add overhead on a shared CPU
+    flat = X[M]
+    mean, std = flat.mean(axis=0), flat.std(axis=0) + 1e-6
+    use = Y.any(axis=1)
+    xt = torch.tensor((X[use] - mean) / std, dtype=torch.float32)
+    mt, yt = torch.tensor(M[use]), torch.tensor(Y[use])
+    net = torch.nn.Sequential(torch.nn.Linear(X.shape[2], hidden), torch.nn.Tanh(), torch.nn.Linear(hidden, 1))
+    opt = torch.optim.Adam(net.parameters(), lr=0.01, weight_decay=decay)
+    for _ in range(epochs):
+        s = net(xt).squeeze(-1).masked_fill(~mt, -1e9)
+        loss = -(torch.logsumexp(s.masked_fill(~yt, -1e9), 1) - torch.logsumexp(s, 1)).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    W1, b1 = net[0].weight.detach().numpy().T, net[0].bias.detach().numpy()
+    w2, b2 = net[2].weight.detach().numpy()[0], net[2].bias.detach().numpy()[0]
+    return {"mean": mean, "std": std, "W1": W1, "b1": b1, "w2": w2, "b2": float(b2), "loss": float(loss.detach())}
+
+
+def evaluate(objs: list[dict], model: dict) -> np.ndarray:
+    """Angle (degrees) between the winning candidate and the truth, per object."""
+    from pixie_gs.prepare.upright import score
+
+    errs = []
+    for o in objs:
+        best = o["ups"][int(np.argmax(score(o["features"], model)))]
+        errs.append(np.degrees(np.arccos(np.clip(best @ o["truth"], -1, 1))))
+    return np.array(errs)
+
+
+def _load_or_build(cache: Path | None, split: str, count: int) -> list[dict]:
+    path = None if cache is None else cache.with_name(f"{cache.stem}_{split}{count}.npz")
+    if path is not None and path.exists():
+        data = np.load(path, allow_pickle=True)
+        return list(data["objs"])
+    objs = object_candidates(split, count)
+    if path is not None:
+        np.savez(path, objs=np.array(objs, dtype=object))
+    return objs
+
+
+def main() -> int:
+    from pixie_gs.prepare.upright import FEATURES, WEIGHTS
+
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--objects", type=int, default=936)
+    ap.add_argument("--val", type=int, default=156)
+    ap.add_argument("--hidden", type=int, default=16)
+    ap.add_argument("--decay", type=float, default=1e-3)
+    ap.add_argument("--epochs", type=int, default=600)
+    ap.add_argument("--cache", default=None, help="reuse/save descriptors here (e.g. /tmp/upright.npz)")
+    ap.add_argument("--out", default=str(WEIGHTS))
+    args = ap.parse_args()
+    cache = Path(args.cache) if args.cache else None
+    t0 = time.perf_counter()
+    train = _load_or_build(cache, "train", args.objects)
+    val = _load_or_build(cache, "val", args.val)
+    kept = [o for o in train if not o["off_base"]]
+    X, M, Y = pack(kept)
+    recall = float(Y.any(axis=1).mean())
+    model = fit(X, M, Y, args.hidden, args.decay, args.epochs)
+    tr, va = evaluate(train, model), evaluate(val, model)
+    print(f"trained on {len(kept)} of {len(train)} objects (the rest lie or lean off their base); "
+          f"candidates: {M.sum(1).mean():.1f} per object; a right one (≤ {RIGHT_DEG:.0f}°) among them for "
+          f"{recall * 100:.0f} % of them")
+    for label, e in (("train", tr), ("val", va)):
+        print(f"{label}: {len(e)} objects, median {np.median(e):.1f}°, ≤ 20° on {np.mean(e <= 20) * 100:.0f} %, "
+              f"worst {e.max():.1f}°")
+    names = sorted({o["name"] for o in val})
+    for name in names:
+        v = np.array([e for o, e in zip(val, va) if o["name"] == name])
+        print(f"  val {name:18s} median {np.median(v):6.1f}°  worst {v.max():6.1f}°")
+    record = {"features": list(FEATURES), **{k: np.asarray(v).tolist() for k, v in model.items() if k != "loss"},
+              "made_by": f"python scripts/train_upright.py --objects {args.objects} --val {args.val} "
+                         f"--hidden {args.hidden} --decay {args.decay} --epochs {args.epochs}",
+              "train_seeds": f"object_seed({SEED}, 'train', 0..{args.objects - 1}), classes round-robin, "
+                               "objects laid off their base left out",
+              "val_median_deg": round(float(np.median(va)), 2),
+              "val_within_20_deg": round(float(np.mean(va <= 20)), 3)}
+    Path(args.out).write_text(json.dumps(record, indent=1) + "\n")
+    print(f"wrote {args.out} ({time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
