@@ -202,3 +202,34 @@ def test_cuda_graph_replay_equals_plain_launches(device):
         for r in range(len(runs)):
             np.testing.assert_allclose(replayed.positions(r), launched.positions(r), rtol=0, atol=tol(device))
     assert np.abs(replayed.positions(0) - runs[0][0].x).max() > 0.02
+
+
+def test_close_rivals_on_the_reduced_model_are_settled_on_the_full_model(monkeypatch, capsys):
+    """Reduced-model fitting (a subset on a coarser grid): rivals of the winner are polished on
+    the full model too and the smallest full-model SSE is added — here every significant rival is
+    checked (RIVAL_WITHIN = 1), batched, and hidden drag must still win with the smallest SSE."""
+    import pixie_gs.diagnose.pipeline as pipeline
+    from pixie_gs.diagnose.forward import Fidelity
+    from pixie_gs.progress import set_quiet
+
+    monkeypatch.setattr(pipeline, "RIVAL_WITHIN", 1.0)
+    cloud = two_part_block(300, seed=0)
+    scene = toss_scene()
+    arrays = make_measurement(cloud, scene, 15, 25.0, "air_drag", None, {"k_per_m": 2.0}, noise_m=1e-3,
+                              fraction=0.1, seed=4, device="cpu")
+    tracks = tracks_from_arrays(arrays["t"], arrays["x"], cloud, ids=arrays["ids"])
+    options = DiagnoseOptions(effects=["air_drag", "viscous_damping", "wind"], max_effects=1, solver_floor=False,
+                              batch=True, fidelity=Fidelity(max_particles=200, grid_scale=0.6, min_grid=12))
+    set_quiet(False)
+    try:
+        d = diagnose(cloud, scene, tracks, device="cpu", options=options)
+    finally:
+        set_quiet(True)
+    line = next(s for s in capsys.readouterr().err.splitlines() if "full-model check of close rivals" in s)
+    sses = {name.strip(): float(v) for name, v in
+            (part.rsplit(" SSE ", 1) for part in line.split(": ", 1)[1].split(" → ")[0].split(", "))}
+    assert len(sses) >= 2 and "air_drag" in sses
+    assert d.effect is not None and d.effect.effect == "air_drag" and line.endswith("→ air_drag")
+    assert sses["air_drag"] == min(sses.values()) and d.effect.sse == pytest.approx(sses["air_drag"], rel=1e-3)
+    assert d.rounds[0].ranking[0].effect == "air_drag"
+    assert d.gap_after <= 0.2 * d.gap_before

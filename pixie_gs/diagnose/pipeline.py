@@ -29,6 +29,9 @@ from .score import BIC_THRESHOLD, MIN_EXCESS_EXPLAINED, Scored, rank, score_cand
 
 
 OFFSET_SEARCH_FRAMES = 3.0      # start-time offsets searched: ± this many frames
+RIVAL_WITHIN = 0.1              # reduced model: rivals within 10 % of the winner's ΔBIC are settled on the full model
+MAX_RIVALS = 2
+MAX_CORRECTIONS = 3             # full-model secant corrections of an effect fitted on the reduced model
 OFFSET_MAX_LOSS_RATIO = 0.3     # an applied offset must cut the early frames' Huber loss by 70 %
 
 
@@ -313,8 +316,10 @@ def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "au
         cur_scene, cur_cloud = winner.effect.apply(cur_scene, cur_cloud, winner.part, dict(chosen.params))
         if model.is_reduced:
             stage("re-simulating the full model with the added effect")
-            cur_scene, cur_cloud, cur_pred, chosen = _polish_on_full_model(
-                runner, problem, winner, chosen, before_scene, before_cloud, cur_scene, cur_cloud)
+            exclude.discard((chosen.effect, chosen.part))
+            winner, (cur_scene, cur_cloud, cur_pred, chosen) = _settle_on_full_model(
+                runner, problem, result, by_key, before_scene, before_cloud)
+            exclude.add((chosen.effect, chosen.part))
             result.chosen = chosen
             accepted.append(chosen)
         else:
@@ -399,15 +404,45 @@ def prepare_tracks(tracks: MeasuredTracks, cloud: SplatCloud, scene, device: str
     return tracks, reg, primed
 
 
+def _settle_on_full_model(runner: _Runner, problem: Problem, result: RoundResult, by_key: dict,
+                          scene0, cloud0) -> tuple[Candidate, tuple]:
+    """The round's winner polished on the full model — and so are its close rivals: significant
+    candidates within RIVAL_WITHIN of its ΔBIC on the reduced model (e.g. linear damping and
+    quadratic drag on a short toss), where the reduced model's own error can decide the order.
+    The one with the smallest full-model SSE is added (and put first in the round's ranking)
+    → (its candidate, _polish_on_full_model's result)."""
+    chosen = result.chosen
+    assert chosen is not None
+    rivals = [s for s in result.ranking[1:] if s.significant and (s.effect, s.part) in by_key
+              and s.delta_bic >= (1.0 - RIVAL_WITHIN) * chosen.delta_bic][:MAX_RIVALS]
+    settled = []
+    for s in [chosen] + rivals:
+        cand = by_key[(s.effect, s.part)]
+        scene1, cloud1 = cand.effect.apply(scene0, cloud0, cand.part, dict(s.params))
+        settled.append((cand, _polish_on_full_model(runner, problem, cand, s, scene0, cloud0, scene1, cloud1)))
+    best_cand, best = min(settled, key=lambda item: item[1][3].sse)
+    if rivals:
+        stage("full-model check of close rivals: " + ", ".join(
+            f"{c.label} SSE {out[3].sse:.4g}" for c, out in settled) + f" → {best_cand.label}")
+        runner.model.set_baseline(best[0], best[1], full_prediction=best[2])  # cached: no new run
+        if best[3].effect != chosen.effect or best[3].part != chosen.part:
+            old = next(i for i, s in enumerate(result.ranking) if (s.effect, s.part) == (best[3].effect, best[3].part))
+            result.ranking.insert(0, result.ranking.pop(old))
+    return best_cand, best
+
+
 def _polish_on_full_model(runner: _Runner, problem: Problem, winner: Candidate, chosen: Scored,
                           scene0, cloud0, scene1, cloud1):
-    """Full-model check (and one secant correction) of an effect fitted on the reduced model.
+    """Full-model check (and up to MAX_CORRECTIONS secant corrections) of an effect fitted on
+    the reduced model.
 
     The reduced model can get the SIZE of an effect's change a little wrong (coarser grid); the
     full runs at θ₀ (current model) and θ* (fitted) give the full model's change Δ along the
     fitted direction, and λ = Δ·r/Δ·Δ rescales the parameter step (in its near-linear
-    coordinate) so the full model matches best; one more full run confirms it. The chosen
-    effect is re-scored with full-model residuals either way.
+    coordinate) so the full model matches best; one more full run confirms it, and while λ
+    still moves by more than 5 % and the fit improves, the step is rescaled again from the
+    newest run (a response that is not linear in the parameter needs more than one). The
+    chosen effect is re-scored with full-model residuals either way.
     """
     from .fit import from_linear_coord, linear_coord
 
@@ -416,10 +451,13 @@ def _polish_on_full_model(runner: _Runner, problem: Problem, winner: Candidate, 
     sse1 = float(np.sum(residuals(problem.measured_x, pred1, problem.visible) ** 2))
     params = winner.params
     if params and all(p.off is not None for p in params):
-        delta = problem.flat(pred1) - problem.flat(problem.base_pred)
-        dd = float(delta @ delta)
-        lam = float(delta @ problem.flat(problem.r0)) / dd if dd > 0 else 1.0
-        if np.isfinite(lam) and abs(lam - 1.0) > 0.05:
+        corrections = []
+        for _ in range(MAX_CORRECTIONS):
+            delta = problem.flat(pred1) - problem.flat(problem.base_pred)
+            dd = float(delta @ delta)
+            lam = float(delta @ problem.flat(problem.r0)) / dd if dd > 0 else 1.0
+            if not (np.isfinite(lam) and abs(lam - 1.0) > 0.05):
+                break
             lam = float(np.clip(lam, 0.25, 4.0))
             values = {}
             for p in params:
@@ -428,11 +466,14 @@ def _polish_on_full_model(runner: _Runner, problem: Problem, winner: Candidate, 
             s2, c2 = winner.effect.apply(scene0, cloud0, winner.part, values)
             pred2 = model.simulate_full(s2, c2)
             sse2 = float(np.sum(residuals(problem.measured_x, pred2, problem.visible) ** 2))
-            if sse2 < sse1:
-                stage(f"full-model correction of {winner.label}: step × {lam:.2f}")
-                scene1, cloud1, pred1, sse1 = s2, c2, pred2, sse2
-                chosen = Scored(**{**chosen.__dict__, "params": values})
-                model.set_baseline(scene1, cloud1, full_prediction=pred1)
+            if not sse2 < sse1:
+                break
+            corrections.append(lam)
+            scene1, cloud1, pred1, sse1 = s2, c2, pred2, sse2
+            chosen = Scored(**{**chosen.__dict__, "params": values})
+            model.set_baseline(scene1, cloud1, full_prediction=pred1)
+        if corrections:
+            stage(f"full-model correction of {winner.label}: step × {' × '.join(f'{c:.2f}' for c in corrections)}")
     n = runner.tracks.num_observations
     rescored = score_candidate(chosen.effect, chosen.part, dict(chosen.params), chosen.num_params, sse1,
                                problem.base_sse, n, runner.sigma, chosen.evaluations,
