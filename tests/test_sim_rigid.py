@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from pixie_gs.errors import InputError
-from pixie_gs.materials import JELLY, METAL, SAND
+from pixie_gs.materials import JELLY, METAL, SAND, STATIONARY
 from pixie_gs.sim import MPMSolver, Particles, Scene
 from pixie_gs.sim.can_scene import diameter_along_blow, soda_can
 from test_sim_kernels import device  # noqa: F401  (the per-device fixture)
@@ -149,6 +149,19 @@ def test_rigid_block_lands_and_rests_on_the_ground(device):
     lowest0 = p.x[:, 2].min() - 0.1  # where its lowest particles sit when touching z = 0
     assert z.min() >= -1e-6 and z.min() - lowest0 < scene.dx  # on the ground, not sunk, not floating
     assert np.abs(sim.velocities()).max() < 1e-3
+
+
+def test_rigid_block_rests_on_a_fixed_slab_instead_of_sinking_into_it(device):
+    scene = Scene.from_dict({"domain": {"size_m": 0.5, "grid": 20}, "solver": {"max_substeps_per_frame": 30}})
+    h = scene.dx / 2
+    slab = Particles.lattice((-0.1, -0.1, 0.0), (0.1, 0.1, 0.05), h, E=1e6, nu=0.3, density=500.0,
+                             material_id=STATIONARY, part_id=0)
+    block = Particles.lattice((-0.05, -0.05, 0.05), (0.05, 0.05, 0.1), h, part_id=1, **AL)  # another part: not held
+    sim = MPMSolver(join(slab, block), scene, device)
+    for _ in range(10):
+        sim.step_frame(1 / 30)
+    assert [c.choice for c in sim.stiff_part_choices] == ["rigid"]
+    assert np.abs(sim.positions()[len(slab):] - block.x).max() < 1e-4  # resting where it was put
 
 
 # ---------------------------------------------------------------------------------------- choices

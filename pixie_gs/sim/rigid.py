@@ -40,6 +40,7 @@ AUTO_SOFTEN_LIMIT = 0.1  # "auto": a solid part that would need E × less than t
 RIGID_MATERIALS = (JELLY, METAL)  # solids; the others flow and are softened instead
 FAR = 1.0e30
 FAR_F = wp.constant(FAR)  # the same, inside kernels
+HELD_NODE_MASS = wp.constant(1.0e6)  # a held grid node weighs this many times the body touching it: immovable
 
 
 @dataclass
@@ -235,12 +236,15 @@ def rigid_particles(v: wp.array(dtype=wp.vec3), x: wp.array(dtype=wp.vec3), orde
 
 @wp.kernel
 def rigid_node_sums(node_body: wp.array3d(dtype=wp.int32), grid_mass: wp.array3d(dtype=float),
-                    grid_velocity: wp.array3d(dtype=wp.vec3), grid: GridInfo, box_lo: wp.vec3i,
-                    com: wp.array(dtype=wp.vec3), node_mass: wp.array(dtype=float),
+                    grid_fixed: wp.array3d(dtype=float), grid_velocity: wp.array3d(dtype=wp.vec3), grid: GridInfo,
+                    box_lo: wp.vec3i, com: wp.array(dtype=wp.vec3), body_mass: wp.array(dtype=float),
+                    node_mass: wp.array(dtype=float),
                     node_moment: wp.array(dtype=wp.vec3), node_momentum: wp.array(dtype=wp.vec3),
                     node_ang: wp.array(dtype=wp.vec3), node_inertia: wp.array(dtype=wp.mat33)):
     """Momentum in: per grid node a body covers that holds soft material, add the node's mass m,
-    m·r, m·v, m·r×v and m(|r|²I − r rᵀ) to the body (r from the body's COM)."""
+    m·r, m·v, m·r×v and m(|r|²I − r rᵀ) to the body (r from the body's COM). A node held by fixed
+    particles counts as resting and HELD_NODE_MASS× heavier than the body: the body sticks to
+    fixed material as soft material does, instead of sinking into it."""
     a, bb, c = wp.tid()
     i = a + box_lo[0]
     j = bb + box_lo[1]
@@ -251,6 +255,9 @@ def rigid_node_sums(node_body: wp.array3d(dtype=wp.int32), grid_mass: wp.array3d
         return
     r = grid.origin + wp.vec3(float(i), float(j), float(k)) * grid.dx - com[b]
     gv = grid_velocity[i, j, k]
+    if grid_fixed[i, j, k] > 0.0:
+        m = HELD_NODE_MASS * body_mass[b]
+        gv = wp.vec3(0.0)
     wp.atomic_add(node_mass, b, m)
     wp.atomic_add(node_moment, b, m * r)
     wp.atomic_add(node_momentum, b, m * gv)
@@ -331,7 +338,7 @@ def rigid_solve(body_mass: wp.array(dtype=float), inertia0: wp.array(dtype=wp.ma
 
 @wp.kernel
 def rigid_set_nodes(node_body: wp.array3d(dtype=wp.int32), grid_mass: wp.array3d(dtype=float),
-                    grid_velocity: wp.array3d(dtype=wp.vec3), grid: GridInfo, box_lo: wp.vec3i,
+                    grid_fixed: wp.array3d(dtype=float), grid_velocity: wp.array3d(dtype=wp.vec3), grid: GridInfo, box_lo: wp.vec3i,
                     pivot: wp.array(dtype=wp.vec3), vel: wp.array(dtype=wp.vec3), omega: wp.array(dtype=wp.vec3)):
     """Velocity out: nodes a body covers move with it (v' + ω'×r) — the soft material there
     sticks to the body, as it would to another MPM body; clears the node tags."""
@@ -343,7 +350,7 @@ def rigid_set_nodes(node_body: wp.array3d(dtype=wp.int32), grid_mass: wp.array3d
     if b < 0:
         return
     node_body[i, j, k] = 0
-    if grid_mass[i, j, k] > 0.0:
+    if grid_mass[i, j, k] > 0.0 and grid_fixed[i, j, k] <= 0.0:
         r = grid.origin + wp.vec3(float(i), float(j), float(k)) * grid.dx - pivot[b]
         grid_velocity[i, j, k] = vel[b] + wp.cross(omega[b], r)
 
@@ -428,6 +435,7 @@ class RigidBodies:
         self.hi = wp.array(np.full((B, 3), -FAR, np.float32), dtype=float, device=d)
         self.node_body = wp.zeros(dims, dtype=wp.int32, device=d)
         self.grid_mass = wp.zeros(dims, dtype=float, device=d)  # the soft material's node masses, kept for advance()
+        self.grid_fixed = wp.zeros(dims, dtype=float, device=d)  # > 0 where fixed particles hold a node
 
     def place(self, x: wp.array, v: wp.array, C: wp.array, F: wp.array, stress: wp.array, order: wp.array) -> None:
         """Give every rigid particle its body's motion (after creation, and after each G2P)."""
@@ -435,13 +443,16 @@ class RigidBodies:
                   inputs=[x, v, C, F, stress, order, self.body_of, self.r0, self.com, self.rot, self.vel,
                           self.omega])
 
-    def before_grid(self, x: wp.array, v: wp.array, order: wp.array, grid: GridInfo, grid_mass: wp.array) -> None:
+    def before_grid(self, x: wp.array, v: wp.array, order: wp.array, grid: GridInfo, grid_mass: wp.array,
+                    grid_fixed: wp.array) -> None:
         """After P2G, before the grid update (which clears the node masses): tag the nodes the
-        bodies cover, collect impulses given to rigid particles, keep the node masses."""
+        bodies cover, collect impulses given to rigid particles, keep the node masses and the
+        held-node weights."""
         wp.launch(rigid_particles, dim=x.shape[0], device=self.device,
                   inputs=[v, x, order, self.body_of, self.r0, self.particle_mass, self.rot, self.vel, self.omega, grid,
                           self.node_body, self.kick, self.kick_ang, self.lo, self.hi])
         wp.copy(self.grid_mass, grid_mass)
+        wp.copy(self.grid_fixed, grid_fixed)
 
     def advance(self, grid: GridInfo, grid_velocity: wp.array, box_lo: tuple[int, int, int],
                 box_shape: tuple[int, int, int], wall_lo: np.ndarray, wall_hi: np.ndarray, friction: float,
@@ -450,7 +461,8 @@ class RigidBodies:
         velocity out to those nodes (G2P then carries it to the soft particles there)."""
         lo3 = wp.vec3i(*box_lo)
         wp.launch(rigid_node_sums, dim=box_shape, device=self.device,
-                  inputs=[self.node_body, self.grid_mass, grid_velocity, grid, lo3, self.com, self.node_mass,
+                  inputs=[self.node_body, self.grid_mass, self.grid_fixed, grid_velocity, grid, lo3, self.com,
+                          self.body_mass, self.node_mass,
                           self.node_moment, self.node_momentum, self.node_ang, self.node_inertia])
         wp.launch(rigid_solve, dim=self.n_bodies, device=self.device,
                   inputs=[self.body_mass, self.inertia0_wp, self.inertia_inv0, self.kick, self.kick_ang, self.node_mass, self.node_moment,
@@ -458,7 +470,8 @@ class RigidBodies:
                           self.rot, self.vel, self.omega, self.gravity, self.damping, wp.vec3(*wall_lo),
                           wp.vec3(*wall_hi), float(friction), float(dt)])
         wp.launch(rigid_set_nodes, dim=box_shape, device=self.device,
-                  inputs=[self.node_body, self.grid_mass, grid_velocity, grid, lo3, self.pivot, self.vel, self.omega])
+                  inputs=[self.node_body, self.grid_mass, self.grid_fixed, grid_velocity, grid, lo3, self.pivot,
+                          self.vel, self.omega])
 
     def state(self) -> dict[str, np.ndarray]:
         """Host copies: com (B,3) m, quaternion (B,4) x,y,z,w, v (B,3) m/s, omega (B,3) rad/s, mass (B,) kg."""
