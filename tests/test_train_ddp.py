@@ -65,6 +65,33 @@ def test_context_from_the_torchrun_environment():
             context_from_env(bad)
 
 
+def test_building_several_steps_at_once_gives_the_same_batches(data):
+    """step_batches with 1, 2 and 3 steps per build call: the same objects, augmentation draws, grids
+    and labels per step (the CUDA default builds ~128 objects per call)."""
+    from pixie_gs.model.batch import AugmentConfig, build_batch
+    from pixie_gs.model.checkpoint import FeatureSpec
+    from pixie_gs.model.data import DeviceStore, load_split
+    from pixie_gs.model.step_batches import step_batches
+
+    records, extra = load_split(data, "train")
+    store = DeviceStore(records, "cpu")
+    spec = FeatureSpec(resolution=16, extra_names=tuple(extra))
+    batches = [[3, 1], [0, 4], [2]]
+    runs = [list(step_batches(store, batches, spec, AugmentConfig(), torch.Generator().manual_seed(11), SINGLE, k))
+            for k in (1, 4, 6)]
+    for steps in zip(*runs):
+        first = steps[0][1]
+        assert len(first.means_unit) == len(steps[0][0])
+        for _, other, counts in steps[1:]:
+            assert counts
+            assert torch.equal(first.occupied, other.occupied) and torch.equal(first.target_class, other.target_class)
+            assert torch.allclose(first.inputs, other.inputs, atol=1e-5)
+            assert torch.allclose(first.target_physical, other.target_physical, atol=1e-5)
+    assert [ids for ids, _, _ in runs[1]] == batches
+    plain = build_batch(store, batches[0], spec)  # augmentation did act: the grids differ from unaugmented ones
+    assert not torch.equal(plain.occupied, runs[0][0][1].occupied)
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -79,10 +106,12 @@ def _worker(rank: int, world: int, port: int, data_dir: str, out_dir: str) -> No
     from torch.nn.parallel import DistributedDataParallel
 
     from pixie_gs.model import distributed
+    from pixie_gs.model import step_batches as steps_mod
     from pixie_gs.model import train as train_mod
     from pixie_gs.model.checkpoint import FeatureSpec
     from pixie_gs.model.data import DeviceStore, load_split
     from pixie_gs.model.predict import grid_channel_names
+    from pixie_gs.model.step_batches import step_batches
     from pixie_gs.model.unet import MaterialUNet, ModelConfig
     from pixie_gs.progress import set_quiet
 
@@ -102,18 +131,18 @@ def _worker(rank: int, world: int, port: int, data_dir: str, out_dir: str) -> No
             torch.manual_seed(0)
             alone = MaterialUNet(ModelConfig(input_channels=names, base_channels=4, multipliers=[1, 2]))
             ddp = DistributedDataParallel(net)  # held: a collected wrapper stops averaging the gradients
-            loss, value, parts, _ = train_mod.batch_loss(ddp, store, ids, spec, None, None, names, names, 1.0, False,
-                                                         ctx)
+            [(_, share, counts)] = step_batches(store, [ids], spec, None, None, ctx)
+            loss, value, parts = train_mod.batch_loss(ddp, share, counts, names, names, 1.0, False, ctx)
             loss.backward()
-            loss1, value1, parts1, _ = train_mod.batch_loss(alone, store, ids, spec, None, None, names, names,
-                                                            1.0, False, SINGLE)
+            [(_, whole, _)] = step_batches(store, [ids], spec, None, None, SINGLE)
+            loss1, value1, parts1 = train_mod.batch_loss(alone, whole, True, names, names, 1.0, False, SINGLE)
             loss1.backward()
             grads[str(ids)] = {"ddp": {k: p.grad for k, p in net.named_parameters()},
                                "one": {k: p.grad for k, p in alone.named_parameters()},
                                "value": (value, value1), "parts": (parts, parts1)}
         # the real training loop, recording which objects each call built and who saved a checkpoint
         built, saved, nets = [], [], []
-        real_build, real_save, real_net = train_mod.build_batch, train_mod.save_checkpoint, train_mod.MaterialUNet
+        real_build, real_save, real_net = steps_mod.build_batch, train_mod.save_checkpoint, train_mod.MaterialUNet
 
         def build(store, ids, *a, **k):
             built.append((len(store), list(ids)))
@@ -124,10 +153,11 @@ def _worker(rank: int, world: int, port: int, data_dir: str, out_dir: str) -> No
                 super().__init__(*a, **k)
                 nets.append(self)
 
-        train_mod.build_batch = build
+        train_mod.build_batch = steps_mod.build_batch = build  # validation, training
         train_mod.save_checkpoint = lambda *a, **k: (saved.append(rank), real_save(*a, **k))[1]
         train_mod.MaterialUNet = Recorded
-        train_mod.train(data_dir, out / "ddp.pt", tiny_config(), device, dist=ctx)
+        # 4 objects per build: both steps of an epoch (shares of 2 and 1 objects) in one call
+        train_mod.train(data_dir, out / "ddp.pt", tiny_config(objects_per_build=4), device, dist=ctx)
         torch.save({"grads": grads, "built": built, "saved": saved, "weights": nets[0].state_dict()},
                    out / f"rank{rank}.pt")
     finally:
@@ -161,12 +191,13 @@ def test_ranks_see_disjoint_halves_and_only_rank_0_writes(two_ranks):
     out, ranks = two_ranks
     train_calls = [[ids for n, ids in r["built"] if n == TRAIN_OBJECTS] for r in ranks]
     val_calls = [[ids for n, ids in r["built"] if n == 2] for r in ranks]
-    assert [len(c) for c in train_calls] == [4, 4]  # 2 epochs × (a batch of 4, a batch of 1)
+    # per epoch one build call per rank for both steps (a batch of 4, then a batch of 1): its share of
+    # step 1 (2 objects), then of step 2
+    assert [[len(ids) for ids in c] for c in train_calls] == [[3, 3], [3, 3]]
     for epoch in range(2):
-        full0, tail0 = train_calls[0][2 * epoch: 2 * epoch + 2]
-        full1, tail1 = train_calls[1][2 * epoch: 2 * epoch + 2]
-        assert len(full0) == len(full1) == 2 and not set(full0) & set(full1)
-        assert sorted(full0 + full1 + tail0) == list(range(TRAIN_OBJECTS))  # the epoch covers every object once
+        (*full0, tail0), (*full1, tail1) = train_calls[0][epoch], train_calls[1][epoch]
+        assert not set(full0) & set(full1)
+        assert sorted(full0 + full1 + [tail0]) == list(range(TRAIN_OBJECTS))  # the epoch covers every object once
         assert tail1 == tail0  # rank 1 had nothing in the last batch: it ran rank 0's object with weight 0
     assert val_calls == [[[0]] * 2, [[1]] * 2]  # the val loss is split too, one object each per epoch
     assert ranks[0]["saved"] and not ranks[1]["saved"]

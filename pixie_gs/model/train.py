@@ -18,12 +18,14 @@ from pathlib import Path
 from ..atomic import atomic_path
 from ..errors import InputError
 from ..field import INPUT_MODES
+from ..materials import NUM_CLASSES
 from ..progress import progress, stage
-from .batch import AugmentConfig, build_batch
+from .batch import AugmentConfig, Batch, build_batch
 from .checkpoint import FeatureSpec, LoadedModel, load_training_state, save_checkpoint, state_path
-from .distributed import SINGLE, DistContext, barrier, from_main, global_batch_loss, rank_share, sum_across
+from .distributed import SINGLE, DistContext, barrier, from_main, global_batch_loss, sum_across
 from .evaluate import evaluate_store
 from .predict import grid_channel_names, object_feature_summary, select_inputs
+from .step_batches import default_objects_per_build, step_batches
 from .unet import MaterialUNet, ModelConfig, masked_loss
 
 
@@ -44,6 +46,7 @@ class TrainConfig:
     input_mode: str = "full"
     init_from: str | None = None  # start from this checkpoint's weights (same network config), fresh optimiser
     model: dict = field(default_factory=dict)  # ModelConfig overrides (base_channels, multipliers, …)
+    objects_per_build: int | None = None  # grids built per call, several steps' worth (None: by device)
     features: dict = field(default_factory=dict)  # FeatureSpec overrides (resolution, filter_voxels)
 
 
@@ -62,6 +65,7 @@ def val_score(summary: dict) -> float:
 
 
 FEATURE_STATS_OBJECTS = 2000  # training objects whose grid statistics are stored in the checkpoint
+VAL_BATCH_CPU, VAL_BATCH_CUDA = 4, 16  # objects per validation pass (CUDA: fewer calls, each with a fixed cost)
 
 
 def training_label_ranges(records) -> dict[str, list[float]]:
@@ -83,28 +87,25 @@ def training_label_ranges(records) -> dict[str, list[float]]:
             "log10_density_kg_m3": pair(np.log10(r_lo), np.log10(r_hi))}
 
 
-def batch_loss(model, store, ids: list[int], spec: FeatureSpec, aug: AugmentConfig | None, gen, names: list[str],
-               inputs: list[str], class_weight: float, use_amp: bool, ctx: DistContext = SINGLE):
-    """Build this rank's share of global batch `ids` and run the model: returns (loss to back-propagate,
-    the loss value of the whole global batch, its parts, this rank's Batch)."""
+def batch_loss(model, batch: Batch, counts: bool, names: list[str], inputs: list[str], class_weight: float,
+               use_amp: bool, ctx: DistContext = SINGLE):
+    """Run the model on this rank's share of a global batch (see step_batches.py): returns (loss to
+    back-propagate, the loss value of the whole global batch, its parts)."""
     import torch
 
-    share, counts = rank_share(ids, ctx)
-    batch = build_batch(store, share, spec, aug, gen)
     x = select_inputs(batch.inputs, names, inputs)
     with torch.autocast("cuda", dtype=torch.bfloat16, enabled=use_amp):
         logits, physical = model(x)
     loss, parts = masked_loss(logits, physical, batch.target_class, batch.target_physical, batch.occupied,
                               class_weight)
     if not ctx.enabled:
-        return loss, float(loss.detach()), parts, batch
-    loss, value, parts = global_batch_loss(loss, parts, int(batch.occupied.sum()), counts, class_weight, ctx,
-                                           store.device)
-    return loss, value, parts, batch
+        return loss, float(loss.detach()), parts
+    return global_batch_loss(loss, parts, int(batch.occupied.sum()), counts, class_weight, ctx,
+                             str(batch.occupied.device))
 
 
 def validation_loss(model, store, spec: FeatureSpec, names: list[str], inputs: list[str], class_weight: float,
-                    use_amp: bool, ctx: DistContext = SINGLE, batch_size: int = 4) -> float:
+                    use_amp: bool, ctx: DistContext = SINGLE, batch_size: int = VAL_BATCH_CPU) -> float:
     """The training loss (no augmentation) averaged over every occupied voxel of the val split; each
     rank computes its share of the objects, the sums are added over the ranks."""
     import torch
@@ -188,6 +189,9 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
 
         model = DistributedDataParallel(net, device_ids=[torch.device(device).index] if use_cuda(device) else None)
     aug = AugmentConfig() if cfg.augment else None
+    per_build = cfg.objects_per_build or default_objects_per_build(device, spec.resolution,
+                                                                       len(names) + NUM_CLASSES + 3)
+    val_batch = VAL_BATCH_CUDA if use_cuda(device) else VAL_BATCH_CPU
     steps_per_epoch = math.ceil(len(train_store) / cfg.batch_size)
     total_steps = steps_per_epoch * cfg.epochs
     use_amp = use_cuda(device)
@@ -210,7 +214,9 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         sums = {"loss": 0.0, "ce": 0.0, "mse_log_E": 0.0, "mse_nu": 0.0, "mse_log_rho": 0.0}
         done = objects = 0
         t_epoch = time.perf_counter()
-        for ids in progress(batches, f"epoch {epoch + 1}/{cfg.epochs}", total=len(batches), unit="batch"):
+        steps = step_batches(train_store, batches, spec, aug, aug_gen, dist, per_build)
+        for ids, batch, counts in progress(steps, f"epoch {epoch + 1}/{cfg.epochs}", total=len(batches),
+                                           unit="batch"):
             elapsed = elapsed_before + time.perf_counter() - t_train
             if cfg.time_budget_s:
                 stop = elapsed + 1.2 * val_seconds >= cfg.time_budget_s
@@ -220,8 +226,7 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
                     break
             for g in opt.param_groups:
                 g["lr"] = learning_rate(cfg, step, total_steps, elapsed)
-            loss, value, parts, batch = batch_loss(model, train_store, ids, spec, aug, aug_gen, names, inputs,
-                                                   cfg.class_weight, use_amp, dist)
+            loss, value, parts = batch_loss(model, batch, counts, names, inputs, cfg.class_weight, use_amp, dist)
             if summarised < FEATURE_STATS_OBJECTS:
                 summaries.append(object_feature_summary(batch.inputs, batch.occupied).float().cpu())
                 summarised += cfg.batch_size if not dist.enabled else len(batch.means_unit)
@@ -245,9 +250,9 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
                                      "std": [round(float(v), 6) for v in f.std(0)]}
         tv = time.perf_counter()
         net.eval()
-        val_loss = validation_loss(net, val_store, spec, names, inputs, cfg.class_weight, use_amp, dist)
+        val_loss = validation_loss(net, val_store, spec, names, inputs, cfg.class_weight, use_amp, dist, val_batch)
         if dist.is_main:  # rank 0 alone validates and writes; the others go on to the next epoch
-            summary = evaluate_store(LoadedModel(net, mcfg, spec, {}, ""), val_store, per_gaussian=False,
+            summary = evaluate_store(LoadedModel(net, mcfg, spec, {}, ""), val_store, val_batch, per_gaussian=False,
                                      desc="validate")
             val_seconds = time.perf_counter() - tv
             elapsed = elapsed_before + time.perf_counter() - t_train
