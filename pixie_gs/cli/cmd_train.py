@@ -37,6 +37,9 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--workers", type=int, default=1, help="processes reading the dataset")
     p.add_argument("--limit-train", type=int, default=None, help="use only the first K train objects")
     p.add_argument("--limit-val", type=int, default=None, help="use only the first K val objects")
+    p.add_argument("--build-objects", type=int, default=None, metavar="N",
+                   help="objects whose input grids are built in one pass, several steps' worth (default: up to "
+                   "128 on CUDA as memory allows, one step on the CPU)")
     p.add_argument("--log", "--log-json", dest="log", default=None, metavar="JSON",
                    help="write the per-epoch history here (under torchrun write --log-json: torchrun's own "
                    "parser takes --log for an abbreviation of its options)")
@@ -57,13 +60,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--multipliers must be integers separated by commas (got '{args.multipliers}')") from None
     if args.resolution % (2 ** (len(mults) - 1)):
         raise InputError(f"--resolution {args.resolution} is not divisible by 2^{len(mults) - 1}")
-    for name in ("epochs", "batch_size", "base_channels", "res_blocks", "workers"):
-        if getattr(args, name) < 1:
+    for name in ("epochs", "batch_size", "base_channels", "res_blocks", "workers", "build_objects"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
             raise InputError(f"--{name.replace('_', '-')} must be ≥ 1")
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, time_budget_s=args.time_budget_s,
                       seed=args.seed, augment=not args.no_augment, workers=args.workers,
                       limit_train=args.limit_train, limit_val=args.limit_val, input_mode=args.inputs,
-                      init_from=args.init,
+                      init_from=args.init, objects_per_build=args.build_objects,
                       model={"base_channels": args.base_channels, "multipliers": mults, "res_blocks": args.res_blocks},
                       features={"resolution": args.resolution})
     ctx = distributed.context_from_env()  # several processes when started by torchrun

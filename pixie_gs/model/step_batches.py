@@ -20,7 +20,7 @@ from .checkpoint import FeatureSpec
 from .distributed import SINGLE, DistContext, rank_share
 
 CUDA_OBJECTS_PER_BUILD = 128  # at most this many objects per build call on CUDA
-BUILD_MEMORY_SHARE = 0.2  # of the GPU memory free before training, for one call's grids and field sums
+BUILD_MEMORY_SHARE = 0.15  # of the GPU memory free before training, per call (two calls are alive at a time)
 
 
 def default_objects_per_build(device: str, resolution: int, channels: int) -> int:

@@ -198,7 +198,8 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
     if use_amp:
         torch.backends.cudnn.benchmark = True
     meta = {"train_config": asdict(cfg), "train_objects": len(train_store), "val_objects": len(val_store),
-            "data_dir": str(data_dir), "history": history, "label_ranges": ranges}
+            "data_dir": str(data_dir), "history": history, "label_ranges": ranges, "processes": dist.world_size,
+            "objects_per_build": per_build}
     where = f"{dist.world_size} processes ({device} on rank 0)" if dist.enabled else device
     stage(f"training {sum(p.numel() for p in net.parameters())} parameters on {where}: "
           f"{len(train_store)} train / {len(val_store)} val objects, inputs={cfg.input_mode} ({len(inputs)} channels)")
