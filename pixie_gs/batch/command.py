@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 from ..errors import ComputationError, InputError
-from .jobs import is_finished, list_inputs, make_jobs, parse_shard, select_shard
+from .jobs import SPLAT_SUFFIXES, is_finished, list_inputs, make_jobs, parse_shard, select_shard
 from .steps import AnnotateOptions
 from .summary import SummaryWriter, asset_record, summary_path
 
@@ -21,8 +21,9 @@ def add_batch_options(p: argparse.ArgumentParser) -> None:
                    help="annotate only every N-th input starting at i (default: from SLURM_ARRAY_TASK_ID - "
                    "SLURM_ARRAY_TASK_MIN and SLURM_ARRAY_TASK_COUNT when set, else all)")
     g.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="pool workers that read, prepare and write while the model runs (default 2); "
-                   "with --ray: CPU model actors when the cluster has no GPU (default: its CPUs)")
+                   help="pool workers that read, prepare and write while the model runs (default: 2, or half the "
+                   "cores up to 8); with --ray: assets each GPU actor works on at once (default 4), or the "
+                   "number of CPU model actors when the cluster has no GPU (default: its CPUs)")
     g.add_argument("--pool", choices=("process", "thread"), default="process",
                    help="kind of the local pool (default process)")
     g.add_argument("--model-threads", type=int, default=1, metavar="K",
@@ -50,6 +51,9 @@ def run_batch(args: argparse.Namespace) -> int:
     out_dir = Path(args.output)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError("batch mode writes into a folder, but this is a file", out_dir)
+    if not out_dir.exists() and out_dir.name.lower().endswith(SPLAT_SUFFIXES):
+        raise InputError("batch mode writes into a folder, but this names a splat file "
+                         "(give a folder, e.g. annotated/)", out_dir)
     shard = parse_shard(args.shard)
     jobs = select_shard(make_jobs(list_inputs(args.input), out_dir), *shard)
     todo = jobs if args.force else [j for j in jobs if not is_finished(j, not opts.no_prepare)]
@@ -97,6 +101,11 @@ def run_batch(args: argparse.Namespace) -> int:
     return 0
 
 
+def default_workers() -> int:
+    """Pool workers when --workers is not given: 2, or half the cores on a bigger machine (at most 8)."""
+    return min(8, max(2, (os.cpu_count() or 2) // 2))
+
+
 def _records(args: argparse.Namespace, opts: AnnotateOptions, todo):
     """Summary records of `todo` as they finish, from the local pool or from Ray."""
     if not todo:
@@ -110,5 +119,5 @@ def _records(args: argparse.Namespace, opts: AnnotateOptions, todo):
         return run_ray(todo, opts, args.ray, args.workers)
     from .runner import run_local
 
-    workers = args.workers or min(2, os.cpu_count() or 1)
+    workers = args.workers or default_workers()
     return run_local(todo, opts, workers=workers, pool=args.pool, model_threads=args.model_threads)

@@ -4,7 +4,7 @@ actor per GPU of the cluster (or per CPU worker when it has none), fed by Ray's 
 Each actor loads the checkpoint once and runs `annotate_job` (read + prepare + predict + write)
 on the files it is given, so every node must see the input and output paths (a shared file
 system) and have pixie-gs installed. `--ray local` starts a Ray instance on this machine, whose CPU
-actors use this process's torch thread count so their bytes equal a local run's.
+actors start with this process's torch thread count so their bytes equal a local run's.
 """
 from __future__ import annotations
 
@@ -18,16 +18,12 @@ from .steps import AnnotateOptions
 class AnnotateActor:
     """Holds the model of one worker (loaded once) and annotates the jobs Ray hands it."""
 
-    def __init__(self, opts: AnnotateOptions, torch_threads: int | None = None) -> None:
+    def __init__(self, opts: AnnotateOptions) -> None:
         from ..annotate import get_model
         from ..devices import resolve_torch_device
         from ..progress import set_quiet
 
         set_quiet(True)
-        if torch_threads:
-            import torch
-
-            torch.set_num_threads(torch_threads)
         self.opts = opts
         get_model(opts.checkpoint, resolve_torch_device(opts.device))
 
@@ -61,26 +57,34 @@ def start_ray(address: str, workers: int | None):
     return ray
 
 
-def actor_plan(ray, opts: AnnotateOptions, workers: int | None, n_jobs: int) -> tuple[int, dict, AnnotateOptions]:
-    """(number of actors, their resource request, options they run with): one per GPU with 1 GPU each
-    when the cluster has GPUs and --device is not cpu; else `workers` (default: the cluster's CPUs)
-    with 1 CPU each, on cpu."""
+GPU_ACTOR_JOBS = 4  # assets a GPU actor works on at once (default): their CPU steps overlap its model step
+
+
+def actor_plan(ray, opts: AnnotateOptions, workers: int | None, n_jobs: int) -> tuple[int, int, dict, AnnotateOptions]:
+    """(number of actors, assets each works on at once, their resource request, options they run with).
+
+    With GPUs (and --device not cpu): one actor per GPU, each running `workers` (default 4) assets in
+    threads, so reading, preparing and writing overlap the network. Else `workers` (default: the
+    cluster's CPUs) actors of 1 CPU, one asset at a time, on cpu."""
     from dataclasses import replace
 
     resources = ray.cluster_resources()
     gpus = int(resources.get("GPU", 0))
     if gpus > 0 and opts.device != "cpu":
-        return max(1, min(gpus, n_jobs)), {"num_gpus": 1, "num_cpus": 1}, replace(opts, device="cuda")
+        return (max(1, min(gpus, n_jobs)), workers or GPU_ACTOR_JOBS, {"num_gpus": 1, "num_cpus": 1},
+                replace(opts, device="cuda"))
     if opts.device == "cuda":
         raise InputError("--device cuda asked for, but the Ray cluster has no GPU")
     count = workers or int(resources.get("CPU", 1))
-    return max(1, min(count, n_jobs)), {"num_cpus": 1}, replace(opts, device="cpu")
+    return max(1, min(count, n_jobs)), 1, {"num_cpus": 1}, replace(opts, device="cpu")
 
 
 def local_torch_threads() -> int:
-    """torch's CPU thread count in this process. The U-Net's CPU results depend on it in the last bits
-    (oneDNN splits its reductions by thread), and Ray starts a 1-CPU actor with one thread: local
-    actors are given this count so their outputs are byte-identical to `pixie annotate` run here."""
+    """torch's CPU thread count in this process. The U-Net's CPU results depend in their last bits on
+    the OpenMP thread count the process started with (OMP_NUM_THREADS; changing it later with
+    torch.set_num_threads does not give the same bytes), and Ray starts a 1-CPU actor with
+    OMP_NUM_THREADS=1: local actors start with this count instead, so their outputs are
+    byte-identical to `pixie annotate` run here."""
     import torch
 
     return torch.get_num_threads()
@@ -92,10 +96,12 @@ def run_ray(jobs: list[Job], opts: AnnotateOptions, address: str, workers: int |
     try:
         from ray.util import ActorPool
 
-        count, resources, actor_opts = actor_plan(ray, opts, workers, len(jobs))
-        remote_actor = ray.remote(AnnotateActor).options(**resources)
-        threads = local_torch_threads() if address == "local" and actor_opts.device == "cpu" else None
-        actors = [remote_actor.remote(actor_opts, threads) for _ in range(count)]
-        yield from ActorPool(actors).map_unordered(lambda actor, job: actor.run.remote(job), jobs)
+        count, concurrent, resources, actor_opts = actor_plan(ray, opts, workers, len(jobs))
+        if address == "local" and actor_opts.device == "cpu":
+            resources["runtime_env"] = {"env_vars": {"OMP_NUM_THREADS": str(local_torch_threads())}}
+        remote_actor = ray.remote(AnnotateActor).options(max_concurrency=concurrent, **resources)
+        actors = [remote_actor.remote(actor_opts) for _ in range(count)]
+        slots = [actor for actor in actors for _ in range(concurrent)]  # a threaded actor takes `concurrent` jobs
+        yield from ActorPool(slots).map_unordered(lambda actor, job: actor.run.remote(job), jobs)
     finally:
         ray.shutdown()

@@ -99,6 +99,8 @@ def run_local(jobs: list[Job], opts: AnnotateOptions, workers: int = 2, pool: st
     The model is loaded here once (`get_model`) and run by `model_threads` threads of this process
     (1 on a CPU: torch already uses every core); `workers` pool workers read + prepare the next
     assets and write the annotated ones."""
+    import torch
+
     from ..annotate import get_model
     from ..devices import resolve_torch_device
 
@@ -108,19 +110,31 @@ def run_local(jobs: list[Job], opts: AnnotateOptions, workers: int = 2, pool: st
     model_ex = cf.ThreadPoolExecutor(max_workers=model_threads, thread_name_prefix="pixie-model")
     try:
         get_model(opts.checkpoint, resolve_torch_device(opts.device))
-        yield from _pipeline(ex, model_ex, jobs, opts, ahead=workers + model_threads)
+        yield from _pipeline(ex, model_ex, jobs, opts, ahead=workers + model_threads,
+                             torch_threads=torch.get_num_threads())
     finally:
         model_ex.shutdown(wait=True, cancel_futures=True)
         ex.shutdown(wait=True, cancel_futures=True)
 
 
-def _model_task(asset: PreparedAsset, opts: AnnotateOptions, job: Job, t_load: float):
+def use_torch_threads(count: int) -> None:
+    """Make torch use `count` CPU threads in the calling thread. OpenMP keeps the count per thread, and
+    the U-Net's CPU results depend on it in the last bits, so a model thread takes the count of the
+    thread that would run `pixie annotate IN OUT` (the main one)."""
+    import torch
+
+    if torch.get_num_threads() != count:
+        torch.set_num_threads(count)
+
+
+def _model_task(asset: PreparedAsset, opts: AnnotateOptions, job: Job, t_load: float, torch_threads: int):
+    use_torch_threads(torch_threads)
     out, t_model = model_step(asset, opts, job)
     return out, asset.prepared, {"read_prepare": t_load, "model": t_model}
 
 
 def _pipeline(ex: cf.Executor, model_ex: cf.Executor, jobs: list[Job], opts: AnnotateOptions,
-              ahead: int) -> Iterator[dict]:
+              ahead: int, torch_threads: int) -> Iterator[dict]:
     """Read/prepare → model → write as futures: at most `ahead` assets read but not yet predicted and
     at most `ahead` results waiting to be written, so memory stays bounded for any library size."""
     todo = iter(jobs)
@@ -145,7 +159,7 @@ def _pipeline(ex: cf.Executor, model_ex: cf.Executor, jobs: list[Job], opts: Ann
                 if isinstance(asset, Failed):
                     yield _failed_record(job, asset, {"read_prepare": t_load})
                 else:
-                    predicting[model_ex.submit(_model_task, asset, opts, job, t_load)] = job
+                    predicting[model_ex.submit(_model_task, asset, opts, job, t_load, torch_threads)] = job
             elif fut in predicting:
                 job = predicting.pop(fut)
                 out, prepared, seconds = fut.result()
