@@ -12,7 +12,8 @@ cross-entropy, Adam, weight decay). The VAL seeds report the held-out accuracy; 
 (benchmarks/bench_prepare.py) are never looked at here.
 
 usage: python scripts/train_upright.py [--objects 936] [--val 156] [--cache /tmp/upright2.npz]
-(about 10 minutes on a 2-core CPU, most of it building the objects; --cache reuses the descriptors)
+(14 minutes on the shared 2-core CPU at load ~15, nearly all of it building the objects and their
+descriptors; --cache keeps those, so a refit takes seconds)
 """
 from __future__ import annotations
 

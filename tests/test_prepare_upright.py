@@ -42,7 +42,7 @@ def test_symmetry_judge_on_analytic_shapes(shape, up, same):
     labels = np.zeros(len(cloud), np.int32)
     _, counted = symmetric_error(cloud.means, labels, np.asarray(up), np.array([0.0, 0.0, 1.0]))
     assert counted == same
-    assert chamfer_over_spacing(cloud.means, labels, np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.0])) < 1e-9
+    assert max(chamfer_over_spacing(cloud.means, labels, np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.0]))) < 1e-9
 
 
 def test_part_labels_break_a_symmetry():
@@ -61,9 +61,10 @@ def test_scorer_file_matches_the_code():
 
 
 def test_up_of_test_seed_objects_under_random_rotations():
-    """20 TEST-seed objects (classes round-robin from a random offset-free start, 5,000 Gaussians),
-    each under a random rotation; the symmetry-aware error (benchmarks/bench_prepare.py gives
-    the 100-object figures) has median ≤ 5° and most objects within 20°."""
+    """20 TEST-seed objects of 20 classes (every third of the 26; seeds the scorer never saw),
+    5,000 Gaussians, each under a random rotation: the symmetry-aware error has median ≤ 5° (the
+    target) and ≥ 80 % of the objects within 20° (the target is all; benchmarks/bench_prepare.py
+    measures 100 objects, docs/benchmarks.md#scene-preparation)."""
     table = load_class_table()
     names = sorted(table)
     errors, raw = [], []

@@ -95,7 +95,8 @@ def estimate_orientation(points: np.ndarray, alphas: np.ndarray, rotations: np.n
     if floor is not None:
         return Orientation(floor, 1.0, "floor plane, content above it")
     shape = estimate_upright(p, a, rotations[pick], ls, spacing, seed=seed)
-    return Orientation(shape.up, shape.confidence, f"object shape (learned scorer over {shape.candidates} candidate bases)")
+    return Orientation(shape.up, shape.confidence,
+                       f"object shape (learned scorer over {shape.candidates} candidate bases)")
 
 
 def _capture_evidence(p: np.ndarray, w: np.ndarray, ls: np.ndarray, opaque: np.ndarray, tol: float,

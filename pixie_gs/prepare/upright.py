@@ -56,7 +56,8 @@ class Candidate:
 
 @dataclass
 class UprightResult:
-    """up: unit vector (3,); confidence in [0, 1]; candidates: how many competed; score margin."""
+    """up: unit vector (3,); confidence in [0, 1] (softmax mass within AGREE_DEG of it); candidates:
+    how many competed."""
 
     up: np.ndarray
     confidence: float
