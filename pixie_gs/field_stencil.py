@@ -82,6 +82,7 @@ def _geometry(means, covariances, n: int, filter_voxels: float, cutoff_sigma: fl
     p64 = inverse_rows(rows, xp)
     reach = cutoff_sigma * xp.sqrt(eigval_rows(rows, xp)[2]) * n  # voxels
     cap = max_radius_voxels - 0.5
+    reach = xp.where(reach <= cap, reach, cap + 1.0)  # above the cap (or NaN): the reference's capped ball
     # from here float32, as the reference: P rounded once, δ and the linear terms in float32
     if xp is np:
         p = [r.astype(np.float32) for r in p64]
@@ -91,7 +92,7 @@ def _geometry(means, covariances, n: int, filter_voxels: float, cutoff_sigma: fl
         mu = list(means.float().t().contiguous())
     base = [xp.floor(c * n) for c in mu]
     inside = (base[0] >= 0) & (base[0] <= n - 1) & (base[1] >= 0) & (base[1] <= n - 1) & (base[2] >= 0) & (base[2] <= n - 1)
-    base = [b.clip(0, n - 1) for b in base]
+    base = [xp.nan_to_num(b.clip(0, n - 1)) for b in base]  # a NaN centre: base 0, its maha NaN adds nothing
     d = [(b + 0.5) * h - c for b, c in zip(base, mu)]  # voxel centre minus the mean (unit cube)
     pd = [(p[3 * i] * d[0] + p[3 * i + 1] * d[1] + p[3 * i + 2] * d[2]) * (2 * h) for i in range(3)]
     cst = (d[0] * pd[0] + d[1] * pd[1] + d[2] * pd[2]) / (2 * h)

@@ -75,6 +75,19 @@ def test_torch_path_of_the_gpu_equals_the_reference_on_cpu(case):
                        splat_field(*args, 32, batch_index=batch, batch_size=2, **kw))
 
 
+@pytest.mark.parametrize("backend", [None, "torch"])
+def test_a_nan_gaussian_adds_nothing(backend):
+    """NaN centres or covariances (read_splat_valid rejects them first) add nothing, crash nothing."""
+    means, cov, alphas, feats = _random_gaussians(300, 10)
+    bad_means, bad_cov = means.clone(), cov.clone()
+    bad_means[7] = float("nan")
+    bad_cov[3] = float("nan")
+    keep = torch.ones(300, dtype=torch.bool)
+    keep[[3, 7]] = False
+    got = stencil_field(bad_means, bad_cov, alphas, feats, 32, backend=backend)
+    _assert_same_field(got, splat_field(means[keep], cov[keep], alphas[keep], feats[keep], 32))
+
+
 def test_fast_field_batches_like_separate_grids():
     """batch_index puts Gaussians into their own grid: the same as the reference and as one grid each."""
     args = _random_gaussians(2400, 8)
