@@ -188,6 +188,9 @@ def test_batch_input_errors_are_one_line_and_write_nothing(library, tmp_path, ca
     assert main(["annotate", str(lib), str(tmp_path / "o"), "--rrd", str(tmp_path / "x.rrd")]) == 1
     assert main(["annotate", str(lib), str(tmp_path / "o.ply")]) == 1
     assert "names a splat file" in capsys.readouterr().err
+    one = str(lib / sorted(os.listdir(lib))[0])
+    assert main(["annotate", one, str(tmp_path / "o.ply"), "--shard", "0/2"]) == 1
+    assert "--shard is for batch mode" in capsys.readouterr().err
     twins = tmp_path / "twins"
     twins.mkdir()
     shutil.copy(lib / sorted(os.listdir(lib))[0], twins / "a.ply")

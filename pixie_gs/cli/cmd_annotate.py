@@ -41,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from ..atomic import check_distinct_output
     from ..batch.jobs import is_batch_input
     from ..batch.steps import AnnotateOptions, predict, read_prepared, write_result
+    from ..errors import InputError
     from ..materials import MATERIAL_NAMES
     from ..progress import stage
 
@@ -48,6 +49,10 @@ def run(args: argparse.Namespace) -> int:
         from ..batch.command import run_batch
 
         return run_batch(args)
+    for flag in ("shard", "ray", "summary"):
+        if getattr(args, flag) is not None:
+            raise InputError(f"--{flag} is for batch mode (IN a folder, a glob or a manifest); "
+                             "this input is one file", args.input)
     check_distinct_output(args.input, args.output, args.force)
     opts = AnnotateOptions.from_args(args)
     opts.validate()
