@@ -151,6 +151,27 @@ def test_rigid_block_lands_and_rests_on_the_ground(device):
     assert np.abs(sim.velocities()).max() < 1e-3
 
 
+def test_tilted_rigid_cube_lands_on_an_edge_and_tips_back_flat(device):
+    """A cube tilted 30° about x (less than 45°: its centre of mass is over the edge it lands
+    on) falls 2 cm, lands on that edge and tips back onto its face: flat, at rest, above ground."""
+    scene = Scene.from_dict({"domain": {"size_m": 0.5, "grid": 20}, "damping": 2.0, "ground": {"friction": 0.8},
+                             "solver": {"max_substeps_per_frame": 30}})
+    a = math.radians(30.0)
+    rot = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
+    cube = Particles.lattice((-0.05, -0.05, -0.05), (0.05, 0.05, 0.05), scene.dx / 2, **AL)
+    x = cube.x @ rot.T
+    cube.x = (x + [0, 0, 0.02 - x[:, 2].min()]).astype(np.float32)
+    sim = MPMSolver(cube, scene, device)
+    for _ in range(30):
+        sim.step_frame(1 / 30)
+    q = sim.rigid.state()["quat"][0]
+    tilt = math.degrees(2 * math.asin(min(1.0, float(np.linalg.norm(q[:3])))))  # of the body, from its start
+    assert abs(tilt - 30.0) < 2.0  # turned back by the 30° it was tilted
+    z = sim.positions()[:, 2]
+    assert z.min() > -0.1 * scene.dx and z.min() < 0.5 * scene.dx
+    assert np.abs(sim.velocities()).max() < 0.01
+
+
 def test_rigid_block_rests_on_a_fixed_slab_instead_of_sinking_into_it(device):
     scene = Scene.from_dict({"domain": {"size_m": 0.5, "grid": 20}, "solver": {"max_substeps_per_frame": 30}})
     h = scene.dx / 2

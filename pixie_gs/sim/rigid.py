@@ -40,7 +40,9 @@ AUTO_SOFTEN_LIMIT = 0.1  # "auto": a solid part that would need E × less than t
 RIGID_MATERIALS = (JELLY, METAL)  # solids; the others flow and are softened instead
 FAR = 1.0e30
 FAR_F = wp.constant(FAR)  # the same, inside kernels
-HELD_NODE_MASS = wp.constant(1.0e6)  # a held grid node weighs this many times the body touching it: immovable
+# a held grid node, or a point of the body touching the floor, weighs this many times the body: it
+# (nearly) stops the motion there. Not more: the float32 sums of the common-motion solve cancel.
+HEAVY = wp.constant(1.0e3)
 
 
 @dataclass
@@ -209,10 +211,17 @@ def rigid_particles(v: wp.array(dtype=wp.vec3), x: wp.array(dtype=wp.vec3), orde
                     body_of: wp.array(dtype=wp.int32), r0: wp.array(dtype=wp.vec3), mass: wp.array(dtype=float),
                     rot: wp.array(dtype=wp.quat), vel: wp.array(dtype=wp.vec3), omega: wp.array(dtype=wp.vec3),
                     grid: GridInfo, node_body: wp.array3d(dtype=wp.int32), kick: wp.array(dtype=wp.vec3),
-                    kick_ang: wp.array(dtype=wp.vec3), lo: wp.array2d(dtype=float), hi: wp.array2d(dtype=float)):
+                    kick_ang: wp.array(dtype=wp.vec3), lo: wp.array2d(dtype=float), hi: wp.array2d(dtype=float),
+                    body_mass: wp.array(dtype=float), floor: float, gravity: wp.vec3, dt: float,
+                    node_mass: wp.array(dtype=float), node_moment: wp.array(dtype=wp.vec3),
+                    node_momentum: wp.array(dtype=wp.vec3), node_ang: wp.array(dtype=wp.vec3),
+                    node_inertia: wp.array(dtype=wp.mat33), contacts: wp.array(dtype=float)):
     """Per rigid particle: tag the 27 grid nodes it covers with its body (id + 1); add any change
     of its velocity since the last rigid_scatter (an impulse) to its body as momentum m·Δv and
-    angular momentum r×m·Δv; widen the body's extents."""
+    angular momentum r×m·Δv; widen the body's extents. A particle that would pass the floor this
+    substep becomes a contact point: a HEAVY× point mass whose velocity keeps its sliding part and
+    loses the part into the floor, summed with the covered nodes, so the common-motion solve
+    stops the body there with the torque that gives (a body landing on a corner tips over)."""
     p = wp.tid()
     idx = order[p]
     b = body_of[idx]
@@ -232,6 +241,16 @@ def rigid_particles(v: wp.array(dtype=wp.vec3), x: wp.array(dtype=wp.vec3), orde
     for d in range(3):
         wp.atomic_min(lo, b, d, xp[d])
         wp.atomic_max(hi, b, d, xp[d])
+    u = vel[b] + wp.cross(omega[b], r) + dt * gravity  # this point's velocity this substep, before contact
+    if u[2] < 0.0 and xp[2] + dt * u[2] < floor:
+        target = wp.vec3(u[0], u[1], wp.min((floor - xp[2]) / dt, 0.0))
+        mh = HEAVY * body_mass[b]
+        wp.atomic_add(node_mass, b, mh)
+        wp.atomic_add(node_moment, b, mh * r)
+        wp.atomic_add(node_momentum, b, mh * target)
+        wp.atomic_add(node_ang, b, mh * wp.cross(r, target))
+        wp.atomic_add(node_inertia, b, mh * (wp.dot(r, r) * wp.identity(n=3, dtype=float) - wp.outer(r, r)))
+        wp.atomic_add(contacts, b, 1.0)
 
 
 @wp.kernel
@@ -243,7 +262,7 @@ def rigid_node_sums(node_body: wp.array3d(dtype=wp.int32), grid_mass: wp.array3d
                     node_ang: wp.array(dtype=wp.vec3), node_inertia: wp.array(dtype=wp.mat33)):
     """Momentum in: per grid node a body covers that holds soft material, add the node's mass m,
     m·r, m·v, m·r×v and m(|r|²I − r rᵀ) to the body (r from the body's COM). A node held by fixed
-    particles counts as resting and HELD_NODE_MASS× heavier than the body: the body sticks to
+    particles counts as resting and HEAVY× heavier than the body: the body sticks to
     fixed material as soft material does, instead of sinking into it."""
     a, bb, c = wp.tid()
     i = a + box_lo[0]
@@ -256,7 +275,7 @@ def rigid_node_sums(node_body: wp.array3d(dtype=wp.int32), grid_mass: wp.array3d
     r = grid.origin + wp.vec3(float(i), float(j), float(k)) * grid.dx - com[b]
     gv = grid_velocity[i, j, k]
     if grid_fixed[i, j, k] > 0.0:
-        m = HELD_NODE_MASS * body_mass[b]
+        m = HEAVY * body_mass[b]
         gv = wp.vec3(0.0)
     wp.atomic_add(node_mass, b, m)
     wp.atomic_add(node_moment, b, m * r)
@@ -273,8 +292,8 @@ def rigid_solve(body_mass: wp.array(dtype=float), inertia0: wp.array(dtype=wp.ma
                 node_ang: wp.array(dtype=wp.vec3), node_inertia: wp.array(dtype=wp.mat33),
                 lo: wp.array2d(dtype=float), hi: wp.array2d(dtype=float), com: wp.array(dtype=wp.vec3),
                 pivot: wp.array(dtype=wp.vec3), rot: wp.array(dtype=wp.quat), vel: wp.array(dtype=wp.vec3),
-                omega: wp.array(dtype=wp.vec3), gravity: wp.vec3, damping: float, wall_lo: wp.vec3,
-                wall_hi: wp.vec3, friction: float, dt: float):
+                omega: wp.array(dtype=wp.vec3), contacts: wp.array(dtype=float), gravity: wp.vec3, damping: float,
+                wall_lo: wp.vec3, wall_hi: wp.vec3, friction: float, dt: float):
     """Per body: impulses, gravity and damping on (v, ω); then the body and the soft material on
     the nodes it covers take one common rigid motion (v', ω') with their summed momentum and
     angular momentum (a perfectly inelastic, momentum-conserving exchange: the body's full mass
@@ -291,6 +310,7 @@ def rigid_solve(body_mass: wp.array(dtype=float), inertia0: wp.array(dtype=wp.ma
     decay = wp.exp(-damping * dt)
     v = (v + dt * gravity) * decay
     w = w * decay
+    vz_free = v[2]
     if node_mass[b] > 0.0:  # soft material on the nodes it covers: one common rigid motion
         Mt = M + node_mass[b]
         S = node_moment[b]
@@ -301,12 +321,14 @@ def rigid_solve(body_mass: wp.array(dtype=float), inertia0: wp.array(dtype=wp.ma
         w = wp.inverse(A + reg * eye) * (L - wp.cross(S, P) / Mt)
         v = (P - wp.cross(w, S)) / Mt
     dvn = float(0.0)
+    if contacts[b] > 0.0:  # the floor pushed it up by this much: Coulomb friction below
+        dvn = wp.max(v[2] - vz_free, 0.0)
     for d in range(3):
         # the fastest it may approach a wall: up to touching it, not at all once at or past it
         if v[d] < 0.0:
             new = wp.max(v[d], wp.min((wall_lo[d] - lo[b, d]) / dt, 0.0))
             if d == 2:
-                dvn = new - v[d]
+                dvn = dvn + new - v[d]
             v[d] = new
         if v[d] > 0.0:
             v[d] = wp.min(v[d], wp.max((wall_hi[d] - hi[b, d]) / dt, 0.0))
@@ -331,6 +353,7 @@ def rigid_solve(body_mass: wp.array(dtype=float), inertia0: wp.array(dtype=wp.ma
     node_momentum[b] = wp.vec3(0.0)
     node_ang[b] = wp.vec3(0.0)
     node_inertia[b] = wp.mat33(0.0)
+    contacts[b] = 0.0
     for d in range(3):
         lo[b, d] = FAR_F
         hi[b, d] = -FAR_F
@@ -431,6 +454,7 @@ class RigidBodies:
         self.node_momentum = wp.zeros(B, dtype=wp.vec3, device=d)
         self.node_ang = wp.zeros(B, dtype=wp.vec3, device=d)
         self.node_inertia = wp.zeros(B, dtype=wp.mat33, device=d)
+        self.contacts = wp.zeros(B, dtype=float, device=d)  # points touching the floor this substep
         self.lo = wp.array(np.full((B, 3), FAR, np.float32), dtype=float, device=d)
         self.hi = wp.array(np.full((B, 3), -FAR, np.float32), dtype=float, device=d)
         self.node_body = wp.zeros(dims, dtype=wp.int32, device=d)
@@ -444,13 +468,15 @@ class RigidBodies:
                           self.omega])
 
     def before_grid(self, x: wp.array, v: wp.array, order: wp.array, grid: GridInfo, grid_mass: wp.array,
-                    grid_fixed: wp.array) -> None:
+                    grid_fixed: wp.array, floor_m: float, dt: float) -> None:
         """After P2G, before the grid update (which clears the node masses): tag the nodes the
         bodies cover, collect impulses given to rigid particles, keep the node masses and the
         held-node weights."""
         wp.launch(rigid_particles, dim=x.shape[0], device=self.device,
                   inputs=[v, x, order, self.body_of, self.r0, self.particle_mass, self.rot, self.vel, self.omega, grid,
-                          self.node_body, self.kick, self.kick_ang, self.lo, self.hi])
+                          self.node_body, self.kick, self.kick_ang, self.lo, self.hi, self.body_mass, float(floor_m),
+                          self.gravity, float(dt), self.node_mass, self.node_moment, self.node_momentum, self.node_ang,
+                          self.node_inertia, self.contacts])
         wp.copy(self.grid_mass, grid_mass)
         wp.copy(self.grid_fixed, grid_fixed)
 
@@ -467,7 +493,7 @@ class RigidBodies:
         wp.launch(rigid_solve, dim=self.n_bodies, device=self.device,
                   inputs=[self.body_mass, self.inertia0_wp, self.inertia_inv0, self.kick, self.kick_ang, self.node_mass, self.node_moment,
                           self.node_momentum, self.node_ang, self.node_inertia, self.lo, self.hi, self.com, self.pivot,
-                          self.rot, self.vel, self.omega, self.gravity, self.damping, wp.vec3(*wall_lo),
+                          self.rot, self.vel, self.omega, self.contacts, self.gravity, self.damping, wp.vec3(*wall_lo),
                           wp.vec3(*wall_hi), float(friction), float(dt)])
         wp.launch(rigid_set_nodes, dim=box_shape, device=self.device,
                   inputs=[self.node_body, self.grid_mass, self.grid_fixed, grid_velocity, grid, lo3, self.pivot,

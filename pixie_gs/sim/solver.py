@@ -541,7 +541,8 @@ class MPMSolver:
         self._grid.set_param_by_name("dt", dt)
         self._grid.set_param_by_name("time_s", t)
         if self.rigid is not None:  # nodes the bodies cover, impulses, node masses (sim/rigid.py)
-            self.rigid.before_grid(self.x, self.v, self.order, self.grid_info, self.grid_mass, self.grid_fixed)
+            self.rigid.before_grid(self.x, self.v, self.order, self.grid_info, self.grid_mass, self.grid_fixed,
+                                   self._rigid_walls[0][2], dt)
         self._grid.launch()
         if timer is not None:
             timer.mark("grid")
