@@ -21,8 +21,12 @@ inertia answer every contact); those nodes then move with the body (velocity out
 rigid motion to the soft particles there). The body's particles get position c + R·r₀, velocity
 v + ω×r, APIC matrix C = [ω]×, F = R and no stress, so relative distances inside a body are kept
 to float precision and the Gaussians' covariances turn with it. Impulses given to its particles
-reach the body as momentum; gravity and viscous damping act on it; the ground and the domain
-walls stop it as a whole (its extreme particles cannot pass them; Coulomb friction on the floor).
+reach the body as momentum; gravity and viscous damping act on it (wind and air drag do not).
+Its particles that would pass the floor become heavy contact points in the same solve (the body
+stops there with the torque that gives: landing on an edge, it tips), with Coulomb friction from
+the contact push; the domain walls stop it as a whole. Fixed material holds it (held nodes are
+heavy and at rest). Limits: two rigid bodies do not collide with each other; a body's state lives
+in the solver, not in `State` (step() on other states does not move it).
 """
 from __future__ import annotations
 
