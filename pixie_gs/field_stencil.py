@@ -12,7 +12,9 @@ voxel centres inside its `cutoff_sigma` ellipsoid, a ball stencil truncating onl
 - on a CPU the candidates are filtered with numpy and the accepted (Gaussian, voxel, weight) triples
   are summed by one sparse-matrix product (scipy CSC × the (M, 1+F) opacity-weighted features): one
   compiled pass instead of torch's index_add over pairs × channels.
-- on CUDA the same groups go through torch (matmul, nonzero, index_add_ with atomics).
+- on CUDA, torch (matmul, nonzero, index_add_ with atomics) with coarser groups (reach in half voxels,
+  candidates around the whole voxel: ~11 groups like the reference, since there kernel launches cost
+  more than candidates).
 
 The result differs from the reference only by float32 summation order (~1e-6 relative), except that a
 voxel centre lying within rounding of the cutoff ellipsoid's surface may be in on one path and out on
@@ -29,16 +31,17 @@ CPU_CANDIDATES_PER_CHUNK = 4_000_000  # (Gaussian, voxel) candidates filtered pe
 CPU_PAIRS_PER_PRODUCT = 40_000_000  # accepted pairs summed per sparse product (~320 MB of triples)
 CUDA_CANDIDATES_PER_CHUNK = 32_000_000
 REACH_STEP = 0.25  # voxels: reach groups (the reference uses 0.5)
+WHOLE_VOXEL = 8  # "octant" of the candidate set around a whole voxel (the CUDA path's coarser groups)
 HALF_DIAGONAL = 0.87  # ≥ √3/2: the reference's bound on a centre's distance to its voxel's centre
 
 
 @lru_cache(maxsize=512)
 def stencil_offsets(key_quarters: int, octant: int) -> np.ndarray:
-    """Integer voxel offsets (K,3) whose centres lie within key_quarters/4 voxels of the octant box.
+    """Integer voxel offsets (K,3) whose centres lie within key_quarters/4 voxels of the box that holds
+    the Gaussian's centre (relative to its voxel's centre).
 
-    octant < 0: the reference's ball (|o| ≤ key + 0.87, key in half voxels = -octant... see
-    `_groups`); octant 0..7: bit 2/1/0 set means the centre's x/y/z lies in [0, ½) of its voxel
-    relative to the voxel centre, unset in [-½, 0)."""
+    octant < 0: the reference's ball |o| ≤ key + 0.87 instead; octant 0..7: bit 2/1/0 set means the
+    centre's x/y/z lies in [0, ½) of its voxel, unset in [-½, 0); octant 8: the whole voxel [-½, ½)³."""
     key = key_quarters * REACH_STEP
     r = int(math.ceil(key + HALF_DIAGONAL))
     rng = np.arange(-r, r + 1)
@@ -48,8 +51,8 @@ def stencil_offsets(key_quarters: int, octant: int) -> np.ndarray:
         keep = (o ** 2).sum(1) <= (key + HALF_DIAGONAL) ** 2
     else:
         bits = np.array([(octant >> 2) & 1, (octant >> 1) & 1, octant & 1], bool)
-        lo = np.where(bits, 0.0, -0.5)
-        hi = np.where(bits, 0.5, 0.0)
+        lo = np.where(bits, 0.0, -0.5) if octant < WHOLE_VOXEL else np.full(3, -0.5)
+        hi = np.where(bits, 0.5, 0.0) if octant < WHOLE_VOXEL else np.full(3, 0.5)
         gap = np.maximum(np.maximum(lo - o, o - hi), 0.0)
         keep = (gap ** 2).sum(1) <= key ** 2
     return np.ascontiguousarray(off[keep])
@@ -63,7 +66,7 @@ def _basis(off: np.ndarray) -> np.ndarray:
 
 
 def _geometry(means, covariances, n: int, filter_voxels: float, cutoff_sigma: float, max_radius_voxels: int,
-              xp=None):
+              xp=None, fine: bool = True):
     """Per-Gaussian (coef (M,10) float32, base voxel (M,3) int64, group key (M,) int64): numpy for
     numpy input, torch on the input's device for CUDA tensors (or any tensors when `xp` is torch).
 
@@ -71,8 +74,9 @@ def _geometry(means, covariances, n: int, filter_voxels: float, cutoff_sigma: fl
     (the voxel holding the centre): h² oᵀPo + 2h oᵀPδ + δᵀPδ with P = (Σ + (filter·h)² I)⁻¹ and δ the
     base voxel's centre minus the mean, as in the reference (P in float64 rounded once to float32, δ and
     the terms in float32). Group keys:
-    8·(reach in quarter voxels) + octant for ordinary Gaussians, −(reach in half voxels) for the ones
-    keeping the reference's ball (reach above the cap, or centre outside the grid)."""
+    16·(reach in quarter voxels) + octant for ordinary Gaussians, −(reach in half voxels) for the ones
+    keeping the reference's ball (reach above the cap, or centre outside the grid). `fine` False (CUDA:
+    fewer groups, fewer kernel launches): reach in half voxels and the whole voxel instead of octants."""
     from .field import eigval_rows, entry_rows, inverse_rows
 
     h = 1.0 / n
@@ -100,9 +104,12 @@ def _geometry(means, covariances, n: int, filter_voxels: float, cutoff_sigma: fl
     cols = [p[0] * hh, p[4] * hh, p[8] * hh, 2 * hh * p[1], 2 * hh * p[2], 2 * hh * p[5], pd[0], pd[1], pd[2], cst]
     octant = (d[0] <= 0) * 4 + (d[1] <= 0) * 2 + (d[2] <= 0) * 1  # bit set: mean ≥ voxel centre on that axis
     quarters = xp.ceil(reach / REACH_STEP).clip(1, int(round(cap / REACH_STEP)))
+    if not fine:
+        quarters = 2 * xp.ceil(quarters / 2)
+        octant = octant * 0 + WHOLE_VOXEL
     halves = xp.ceil(reach * 2.0).clip(1, int(round(cap * 2)))  # the reference's key, in half voxels
     ordinary = inside & (reach <= cap)
-    key = xp.where(ordinary, quarters * 8 + octant, -halves)
+    key = xp.where(ordinary, quarters * 16 + octant, -halves)
     if xp is np:  # column writes into preallocated arrays: no (M,10) float64 temporary
         coef = np.empty((len(cst), 10), np.float32)
         ijk = np.empty((len(cst), 3), np.int64)
@@ -118,7 +125,7 @@ def _group_offsets(key: int) -> np.ndarray:
     """Candidate offsets of one group key (see `_geometry`)."""
     if key < 0:  # reference ball: half-voxel key -key → key in quarters 2·(-key), octant −1
         return stencil_offsets(-2 * key, -1)
-    return stencil_offsets(key // 8, key % 8)
+    return stencil_offsets(key // 16, key % 16)
 
 
 def stencil_field(means, covariances, alphas, features, resolution: int = 64, filter_voxels: float = 0.5,
@@ -218,7 +225,8 @@ def _torch_sums(means, covariances, alphas, features, n, filter_voxels, cutoff_s
     dev = means.device
     pad = int(math.ceil(max_radius_voxels - 0.5 + HALF_DIAGONAL))
     np_ = n + 2 * pad
-    coef, base, key = _geometry(means, covariances, n, filter_voxels, cutoff_sigma, max_radius_voxels, torch)
+    coef, base, key = _geometry(means, covariances, n, filter_voxels, cutoff_sigma, max_radius_voxels, torch,
+                                fine=False)  # ~11 groups, as the reference: kernel launches, not candidates, cost on a GPU
     bidx = torch.zeros(len(means), dtype=torch.long, device=dev) if batch_index is None else batch_index.long()
     base_flat = ((bidx * np_ + base[:, 0] + pad) * np_ + base[:, 1] + pad) * np_ + base[:, 2] + pad
     alpha = alphas.float()[:, None]
