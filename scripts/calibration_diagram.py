@@ -130,18 +130,31 @@ def _logistic_inputs(outs: list[Outputs]) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(xs), np.concatenate(ys).astype(np.float64)
 
 
-def fit_logistic(outs: list[Outputs], ridge: float = 1e-3, steps: int = 50) -> np.ndarray:
-    """Weights (a, b, c) of σ(a·logit p + b·ln ind + c) by Newton's method on the log-likelihood."""
+def fit_logistic(outs: list[Outputs], ridge: float = 1e-3, steps: int = 100) -> np.ndarray:
+    """Weights (a, b, c) of σ(a·logit p + b·ln ind + c): Newton's method with backtracking on the mean
+    negative log-likelihood plus a small ridge on a and b (the steps never increase the objective)."""
     X, y = _logistic_inputs(outs)
-    w = np.array([1.0, 1.0, 0.0])
+    pen = np.array([ridge, ridge, 0.0])
+
+    def objective(w: np.ndarray) -> float:
+        t = X @ w
+        return float(np.mean(np.logaddexp(0.0, t) - y * t) + 0.5 * (pen * w * w).sum())
+
+    w = np.array([1.0, 0.0, 0.0])
+    f = objective(w)
     for _ in range(steps):
         q = 1 / (1 + np.exp(-np.clip(X @ w, -30, 30)))
-        grad = X.T @ (q - y) / len(y) + ridge * w
-        H = (X * (q * (1 - q))[:, None]).T @ X / len(y) + ridge * np.eye(3)
+        grad = X.T @ (q - y) / len(y) + pen * w
+        H = (X * (q * (1 - q))[:, None]).T @ X / len(y) + np.diag(pen) + 1e-9 * np.eye(3)
         step = np.linalg.solve(H, grad)
-        w -= step
-        if np.abs(step).max() < 1e-8:
+        t = 1.0
+        while t > 1e-6 and objective(w - t * step) > f:
+            t *= 0.5
+        w_new = w - t * step
+        f_new = objective(w_new)
+        if f - f_new < 1e-12:
             break
+        w, f = w_new, f_new
     return w
 
 
@@ -166,6 +179,39 @@ def collect(loaded, names: list[str], per_class: int, seed: int, split: str, n: 
         cloud, _ = build_object(table[name], object_seed(seed, split, index), n, realistic=realistic)
         outs.append(object_outputs(loaded, cloud, name, device))
     return outs
+
+
+def save_cache(path: str, sets: dict[str, tuple[list[Outputs], list[Outputs]]]) -> None:
+    """Every object's Outputs of every held-out set, as one .npz."""
+    arrays: dict[str, np.ndarray] = {}
+    for si, (label, (test, val)) in enumerate(sets.items()):
+        arrays[f"label_{si}"] = np.array(label)
+        for part, outs in (("test", test), ("val", val)):
+            for oi, o in enumerate(outs):
+                key = f"{si}_{part}_{oi}"
+                arrays[f"logits_{key}"], arrays[f"true_{key}"] = o.logits.astype(np.float32), o.true
+                arrays[f"meta_{key}"] = np.array([o.in_distribution])
+                arrays[f"category_{key}"] = np.array(o.category)
+    np.savez_compressed(path, **arrays)
+
+
+def load_cache(path: str) -> dict[str, tuple[list[Outputs], list[Outputs]]]:
+    data = np.load(path)
+    sets = {}
+    si = 0
+    while f"label_{si}" in data:
+        parts = []
+        for part in ("test", "val"):
+            outs, oi = [], 0
+            while f"logits_{si}_{part}_{oi}" in data:
+                key = f"{si}_{part}_{oi}"
+                outs.append(Outputs(data[f"logits_{key}"].astype(np.float64), data[f"true_{key}"],
+                                    float(data[f"meta_{key}"][0]), str(data[f"category_{key}"])))
+                oi += 1
+            parts.append(outs)
+        sets[str(data[f"label_{si}"])] = (parts[0], parts[1])
+        si += 1
+    return sets
 
 
 def curves_of(result: dict) -> list[tuple[str, dict, str]]:
@@ -226,6 +272,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=600, help="dataset seed of the held-out objects")
     ap.add_argument("--device", default="cpu", help="torch device for the model (cpu, cuda)")
     ap.add_argument("--json", default=None, help="also write every figure as JSON")
+    ap.add_argument("--cache", default=None, metavar="NPZ",
+                    help="keep the per-Gaussian logits here and reuse them on the next run (refits only)")
     ap.add_argument("--from-json", default=None, metavar="FILE",
                     help="only redraw the PNG from a JSON this script wrote (e.g. on a GPU box without matplotlib)")
     args = ap.parse_args()
@@ -244,11 +292,18 @@ def main() -> None:
     sets = {"10 training categories, clean": (PAPER_CLASSES, False),
             "26 categories, capture-like": (every, True)}
     result: dict = {"checkpoint": loaded.path, "gaussians": args.gaussians, "seed": args.seed, "sets": {}}
+    cached = load_cache(args.cache) if args.cache and Path(args.cache).is_file() else {}
     for label, (names, realistic) in sets.items():
-        test = collect(loaded, names, args.per_class, args.seed, "test", args.gaussians, realistic, f"test: {label}",
-                       args.device)
-        val = collect(loaded, names, args.val_per_class, args.seed, "val", args.gaussians, realistic, f"val: {label}",
-                      args.device)
+        if label in cached:
+            test, val = cached[label]
+        else:
+            test = collect(loaded, names, args.per_class, args.seed, "test", args.gaussians, realistic,
+                           f"test: {label}", args.device)
+            val = collect(loaded, names, args.val_per_class, args.seed, "val", args.gaussians, realistic,
+                          f"val: {label}", args.device)
+            cached[label] = (test, val)
+            if args.cache:
+                save_cache(args.cache, cached)
         T = fit_temperature(val)
         w = fit_logistic(val)
         rel1 = reliability(*confidence_and_correct(test))
