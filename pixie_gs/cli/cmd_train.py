@@ -13,8 +13,9 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
         "The best weights by validation score go to CKPT; CKPT.state.pt holds what --resume needs. "
         "Started by torchrun, it trains data-parallel: each batch is split over the processes (one GPU each, "
         "or gloo on the CPU) and rank 0 writes the checkpoint and the log.",
-        epilog="examples: pixie train data/ --out model.pt --epochs 40 --device cuda --time-budget-s 300;  "
-        "torchrun --standalone --nproc_per_node 2 -m pixie_gs.cli.main train data/ --out model.pt --device cuda",
+        epilog="example: pixie train data/ --out model.pt --epochs 40 --device cuda --time-budget-s 300;  "
+        "on 2 GPUs: torchrun --standalone --nproc_per_node 2 -m pixie_gs.cli.main train data/ --out model.pt "
+        "--device cuda",
     )
     p.add_argument("data_dir", metavar="DATA_DIR", help="dataset made by `pixie generate` (train/ and val/ splits)")
     p.add_argument("--out", required=True, metavar="CKPT", help="checkpoint file to write (.pt)")
