@@ -29,7 +29,7 @@ import numpy as np
 
 CPU_CANDIDATES_PER_CHUNK = 4_000_000  # (Gaussian, voxel) candidates filtered per numpy step (~36 MB)
 CPU_PAIRS_PER_PRODUCT = 40_000_000  # accepted pairs summed per sparse product (~320 MB of triples)
-CUDA_CANDIDATES_PER_CHUNK = 32_000_000
+CUDA_CANDIDATES_PER_CHUNK = 16_000_000  # as the reference: same peak GPU memory
 REACH_STEP = 0.25  # voxels: reach groups (the reference uses 0.5)
 WHOLE_VOXEL = 8  # "octant" of the candidate set around a whole voxel (the CUDA path's coarser groups)
 HALF_DIAGONAL = 0.87  # ≥ √3/2: the reference's bound on a centre's distance to its voxel's centre
