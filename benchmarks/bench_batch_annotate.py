@@ -16,6 +16,7 @@ import argparse
 import concurrent.futures as cf
 import json
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -72,6 +73,7 @@ def run_batch(inp: Path, out: Path, device: str, extra: list[str], timeout: floa
     import signal
 
     cmd = pixie("annotate", str(inp), str(out), "--device", device, "-q", *extra)
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
@@ -81,6 +83,8 @@ def run_batch(inp: Path, out: Path, device: str, extra: list[str], timeout: floa
         stdout, stderr = proc.communicate()
         print(f"  stopped at the time budget ({timeout:.0f} s)", flush=True)
     wall = time.perf_counter() - t
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
     if proc.returncode not in (0, -signal.SIGKILL):
         raise SystemExit(f"batch failed ({proc.returncode}): {stderr.strip()[-2000:]}")
     if stdout.strip():
@@ -88,6 +92,7 @@ def run_batch(inp: Path, out: Path, device: str, extra: list[str], timeout: floa
     recs = [json.loads(x) for x in (out / "summary.jsonl").read_text().splitlines()] if (out / "summary.jsonl").exists() else []
     ok = [r for r in recs if r["status"] == "ok"]
     steps = {k: sum(r["step_seconds"][k] for r in ok) / max(1, len(ok)) for k in ("read_prepare", "model", "write")}
+    steps["cpu_total"] = cpu
     return wall, len(ok), steps
 
 
@@ -153,6 +158,11 @@ def main() -> None:
                       f"included): {rates[label]:.2f} assets/s; mean per asset: read+prepare "
                       f"{steps['read_prepare']:.3f} s, model {steps['model']:.3f} s, write {steps['write']:.3f} s",
                       flush=True)
+                cores = os.cpu_count() or 1
+                per = steps["cpu_total"] / max(1, done)
+                print(f"  CPU time {steps['cpu_total']:.1f} s = {per:.2f} CPU-s per asset (startup included); "
+                      f"on {cores} idle cores that bounds the rate at {cores / per:.2f} assets/s "
+                      f"(load average now {os.getloadavg()[0]:.1f})", flush=True)
                 first_out = first_out or out
         files = [f for f in sorted(lib.glob("asset_*.ply"))[: args.loop_files]
                  if first_out is not None and (first_out / f.name).exists()]
