@@ -6,7 +6,8 @@ runtime of one 20k-particle, 2-second diagnosis.
     python benchmarks/bench_diagnose.py --part runtime --device cuda   # runtime on a GPU
     python benchmarks/bench_diagnose.py --part runtime --batch off     # candidate runs one by one
     python benchmarks/bench_diagnose.py --part batch --device cuda     # K runs batched vs one by one
-    python benchmarks/bench_diagnose.py --part runtime --device cuda --graph   # substeps as CUDA graphs
+    python benchmarks/bench_diagnose.py --part runtime --device cuda --graph off   # no CUDA graphs
+    python benchmarks/bench_diagnose.py --part runtime --device cuda --profile 40  # where the time goes
 
 Confusion part: for each object (a generated two-part block, and a generated three-part shrub
 from the dataset generator), each effect of the library hidden at two strengths (and once with
@@ -131,7 +132,7 @@ def confusion(device: str, frames: int, fps: float, n_block: int, n_shrub: int) 
 
 
 def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values: dict,
-            batch: bool | None = None) -> None:
+            batch: bool | None = None, profile: int = 0) -> None:
     from pixie_gs.sim.batch import simulate_batch
     from pixie_gs.sim.run import simulate
 
@@ -149,6 +150,12 @@ def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values
     one_sim_cpu = time.process_time() - cpu_start
     arrays = make_measurement(cloud, scene, frames, fps, effect, None, values, fraction=FRACTION,
                               noise_m=NOISE_M, seed=7, device=device)
+    profiler = None
+    if profile:
+        import cProfile
+
+        profiler = cProfile.Profile()
+        profiler.enable()
     start = time.perf_counter()
     cpu_start = time.process_time()
     tracks = tracks_from_arrays(arrays["t"], arrays["x"], cloud, ids=arrays["ids"])
@@ -159,10 +166,17 @@ def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values
         summary = write_report(Path(out), d, cloud, device=device, rrd=has_rerun)
     total = time.perf_counter() - start
     cpu = time.process_time() - cpu_start
+    if profiler is not None:
+        import pstats
+
+        profiler.disable()
+        stats = pstats.Stats(profiler, stream=sys.stdout)
+        stats.sort_stats("cumulative").print_stats(profile)
+        stats.sort_stats("tottime").print_stats(profile)
     named = d.effect
     print(f"runtime: {n} Gaussians, {seconds:g} s at {fps:g} fps, device {device}, hidden {effect} {values}, "
           f"batch {'auto' if batch is None else ('on' if batch else 'off')}"
-          f"{', CUDA graphs' if sys.modules['pixie_gs.sim.batch'].CUDA_GRAPH else ''}")
+          f"{', CUDA graphs' if device != 'cpu' and sys.modules['pixie_gs.sim.batch'].CUDA_GRAPH else ''}")
     print(f"  warm-up (Warp init, kernels loaded or compiled; not timed below): {warm:.1f} s")
     print(f"  one full simulation (baseline): {one_sim:.1f} s wall ({one_sim_cpu:.1f} s CPU)")
     print(f"  diagnosis incl. outputs: {total:.1f} s wall ({cpu:.1f} s CPU of this process) = "
@@ -225,19 +239,21 @@ def main() -> None:
     ap.add_argument("--shrub", type=int, default=800, help="Gaussians of the confusion shrub")
     ap.add_argument("--batch", choices=("auto", "on", "off"), default="auto",
                     help="candidate runs as batched simulations (auto: on a GPU only)")
-    ap.add_argument("--graph", action="store_true",
-                    help="GPU: batched substeps replayed as one CUDA graph each (sim/batch.py CUDA_GRAPH)")
+    ap.add_argument("--graph", choices=("on", "off"), default=None,
+                    help="GPU: batched substeps replayed as one CUDA graph each (default on: sim/batch.py CUDA_GRAPH)")
+    ap.add_argument("--profile", type=int, default=0, metavar="N",
+                    help="runtime part: profile the diagnosis (cProfile) and print the top N functions")
     args = ap.parse_args()
     set_quiet(True)
-    if args.graph:
+    if args.graph is not None:
         import pixie_gs.sim.batch as batch_module
 
-        batch_module.CUDA_GRAPH = True
+        batch_module.CUDA_GRAPH = args.graph == "on"
     if args.part in ("all", "confusion"):
         confusion(args.device, frames=17, fps=25.0, n_block=args.block, n_shrub=args.shrub)
     if args.part in ("all", "runtime"):
         runtime(args.device, args.particles, args.seconds, 30.0, "air_drag", {"k_per_m": 1.5},
-                batch={"auto": None, "on": True, "off": False}[args.batch])
+                batch={"auto": None, "on": True, "off": False}[args.batch], profile=args.profile)
     if args.part == "batch":
         batch_speed(args.device, args.particles, args.seconds, 30.0)
 
