@@ -34,7 +34,7 @@ def main() -> None:
                 dents.append(d0 - diameter_along_blow(sim.positions(), band))
             wall = time.perf_counter() - t0
             dents = np.array(dents)
-            print(f"dx {1000 * scene.dx:.1f} mm (, {len(p):,} particles), blow {dv:g} m/s: "
+            print(f"dx {1000 * scene.dx:.1f} mm ({len(p):,} particles), blow {dv:g} m/s: "
                   f"{sim.substeps_last_frame:,} substeps/ms, {wall:.1f} s wall; dent per ms (mm) "
                   f"{np.round(1000 * dents, 2).tolist()}; final/diameter {dents[-1] / d0:.3f}, "
                   f"final/max {dents[-1] / max(dents.max(), 1e-12):.2f}", flush=True)
