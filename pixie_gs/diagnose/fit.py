@@ -229,7 +229,10 @@ def predict_linear(problem: Problem, cand: Candidate, r_flat: np.ndarray, start:
     if not np.isfinite(J).all() or not np.any(J):
         cand.linear_values, cand.predicted_sse = None, None
         return
-    sol = lsq_linear(J, r_flat, bounds=(lo, hi + 1e-12), method="bvls" if J.shape[1] <= 3 else "trf")
+    # the same minimiser on the k×k triangle: J = QR gives ‖r − Jδ‖² = ‖r − QQᵀr‖² + ‖Qᵀr − Rδ‖²
+    # (J has one row per tracked coordinate — 10⁵ or more — and k ≤ 3 columns)
+    Q, R = np.linalg.qr(J)
+    sol = lsq_linear(R, Q.T @ r_flat, bounds=(lo, hi + 1e-12), method="bvls" if J.shape[1] <= 3 else "trf")
     delta = sol.x
     cand.linear_values = {p.name: from_linear_coord(p, linear_coord(p, start[p.name]) + d)
                           for p, d in zip(cand.params, delta)}
