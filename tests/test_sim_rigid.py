@@ -1,8 +1,9 @@
 """Stiff parts (sim/rigid.py) against answers the solver does not produce: a part too stiff for the
 substep budget moves as a rigid body (relative distances kept to float precision, free fall
 ½gt² and the exact symplectic-Euler sum, torque-free spin at constant ω), presses an elastic
-pad as its weight says (static compression vs load·H/(E·A)), comes to rest on the ground, and
-trades momentum with soft material without creating any; the per-part choice is printed with
+pad as its weight says (static compression vs load·H/(E·A)), comes to rest on the ground (a
+tilted cube landing on an edge tips back flat) and on fixed material, and trades momentum with
+soft material without creating any; the per-part choice is printed with
 the substeps the P-wave speed needs; "soften" and "true" do what they say.
 The soda can: on CUDA at true stiffness it dents and stays dented; on the CPU it runs rigid.
 """
@@ -19,6 +20,7 @@ from pixie_gs.materials import JELLY, METAL, SAND, STATIONARY
 from pixie_gs.sim import MPMSolver, Particles, Scene
 from pixie_gs.sim.can_scene import diameter_along_blow, soda_can
 from test_sim_kernels import device  # noqa: F401  (the per-device fixture)
+from test_sim_physics import join
 
 G = 9.81  # m/s²
 AL = {"E": 7e10, "nu": 0.33, "density": 2700.0, "material_id": METAL}  # aluminium
@@ -27,11 +29,6 @@ AL = {"E": 7e10, "nu": 0.33, "density": 2700.0, "material_id": METAL}  # alumini
 def p_wave(E: float, nu: float, rho: float) -> float:
     """Textbook P-wave speed (m/s)."""
     return math.sqrt(E * (1 - nu) / (rho * (1 + nu) * (1 - 2 * nu)))
-
-
-def join(*parts: Particles) -> Particles:
-    fields = ("x", "v", "volume", "E", "nu", "density", "material_id", "yield_stress", "fixed", "part_id")
-    return Particles(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in fields})
 
 
 def pair_distances(x: np.ndarray, k: int = 60) -> np.ndarray:
