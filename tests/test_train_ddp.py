@@ -13,6 +13,7 @@ import os
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -105,6 +106,7 @@ def _worker(rank: int, world: int, port: int, data_dir: str, out_dir: str) -> No
     torch.set_num_threads(1)
     from torch.nn.parallel import DistributedDataParallel
 
+    from pixie_gs.errors import InputError
     from pixie_gs.model import distributed
     from pixie_gs.model import step_batches as steps_mod
     from pixie_gs.model import train as train_mod
@@ -158,7 +160,14 @@ def _worker(rank: int, world: int, port: int, data_dir: str, out_dir: str) -> No
         train_mod.MaterialUNet = Recorded
         # 4 objects per build: both steps of an epoch (shares of 2 and 1 objects) in one call
         train_mod.train(data_dir, out / "ddp.pt", tiny_config(objects_per_build=4), device, dist=ctx)
-        torch.save({"grads": grads, "built": built, "saved": saved, "weights": nets[0].state_dict()},
+        weights, built_main = nets[0].state_dict(), list(built)
+        # a time budget spent before the first step: rank 0's clock stops every rank, none hangs
+        try:
+            train_mod.train(data_dir, out / "budget.pt", tiny_config(time_budget_s=1e-9), device, dist=ctx)
+            budget = "finished"
+        except InputError as exc:
+            budget = str(exc)
+        torch.save({"grads": grads, "built": built_main, "saved": saved, "weights": weights, "budget": budget},
                    out / f"rank{rank}.pt")
     finally:
         distributed.leave(ctx)
@@ -170,7 +179,13 @@ def two_ranks(data, tmp_path_factory):
     import torch.multiprocessing as mp
 
     out = tmp_path_factory.mktemp("ddp_out")
-    mp.spawn(_worker, args=(2, _free_port(), str(data), str(out)), nprocs=2, join=True)
+    procs = mp.spawn(_worker, args=(2, _free_port(), str(data), str(out)), nprocs=2, join=False)
+    deadline = time.monotonic() + 600
+    while not procs.join(timeout=2):  # raises when a rank failed
+        if time.monotonic() > deadline:
+            for p in procs.processes:
+                p.kill()
+            pytest.fail("the 2-process run did not finish in 600 s (a rank waiting in a collective?)")
     return out, [torch.load(out / f"rank{r}.pt", weights_only=False) for r in range(2)]
 
 
@@ -201,6 +216,7 @@ def test_ranks_see_disjoint_halves_and_only_rank_0_writes(two_ranks):
         assert tail1 == tail0  # rank 1 had nothing in the last batch: it ran rank 0's object with weight 0
     assert val_calls == [[[0]] * 2, [[1]] * 2]  # the val loss is split too, one object each per epoch
     assert ranks[0]["saved"] and not ranks[1]["saved"]
+    assert ranks[0]["budget"] == ranks[1]["budget"] and "before a single epoch finished" in ranks[0]["budget"]
     state = torch.load(str(out / "ddp.pt") + ".state.pt", weights_only=True)
     assert state["step"] == 4 and [h["epoch"] for h in json.loads(state["history_json"])] == [1, 2]
 
