@@ -149,6 +149,10 @@ def test_simulate_batch_matches_simulate_per_model(device):
         assert traj.substeps_per_frame == ref.substeps_per_frame
         np.testing.assert_allclose(traj.x, ref.x, rtol=0, atol=1e-4)
     assert np.abs(trajs[0].x[-1] - trajs[1].x[-1]).max() > 5e-3
+    ids = np.array([5, 0, 299, 17])  # only these Gaussians, in this order
+    picked = simulate_batch([(cloud, scene), (cloud, drag)], 12, 25.0, device=device, points=ids)
+    for full, part in zip(trajs, picked):
+        np.testing.assert_allclose(part.x, full.x[:, ids], rtol=0, atol=tol(device))
 
 
 def test_forward_model_batched_predictions_equal_one_by_one(device):

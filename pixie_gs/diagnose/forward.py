@@ -166,7 +166,7 @@ class ForwardModel:
                     set_quiet(True)
                     try:
                         trajs = simulate_batch([todo[k] for k in chunk], self.frames, self.fps, device=self.device,
-                                               fill=self.fill)
+                                               fill=self.fill, points=ids)
                     finally:
                         set_quiet(quiet)
                         self.runs += len(chunk)
@@ -174,7 +174,7 @@ class ForwardModel:
                         self.seconds += time.perf_counter() - start
                     for k, traj in zip(chunk, trajs):
                         out[k] = traj if isinstance(traj, Exception) else \
-                            sample_at(traj.x[:, ids].astype(np.float64), self.fps, self.tracks.t)
+                            sample_at(traj.x.astype(np.float64), self.fps, self.tracks.t)
                     chunk, size = [], 0
                 if key is not None:
                     chunk.append(key)

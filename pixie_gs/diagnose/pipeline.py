@@ -360,14 +360,16 @@ def prepare_tracks(tracks: MeasuredTracks, cloud: SplatCloud, scene, device: str
         if options.batch:  # the same solver path as every fitting run (sim/batch.py)
             from ..sim.batch import simulate_batch
 
-            traj = simulate_batch([(cloud, scene)], frames + 4, fps, device=device, fill=options.fill)[0]
+            traj = simulate_batch([(cloud, scene)], frames + 4, fps, device=device, fill=options.fill,
+                                  points=tracks.ids)[0]
             if isinstance(traj, Exception):
                 raise traj
+            xs = traj.x.astype(np.float64)
         else:
             traj = simulate(cloud, scene, frames + 4, fps, device=device, fill=options.fill)
+            xs = traj.x[:, tracks.ids].astype(np.float64)
     finally:
         set_quiet(quiet)
-    xs = traj.x[:, tracks.ids].astype(np.float64)
     delta, loss_best, loss_zero = fit_time_offset(xs, fps, tracks.x, tracks.visible, tracks.t,
                                                   max_frames=OFFSET_SEARCH_FRAMES)
     reg.time_offset_s = float(delta)

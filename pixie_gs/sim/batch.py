@@ -417,10 +417,14 @@ class BatchedSolver:
 
 
 def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: float, device: str = "auto",
-                   fill: bool = False, quiet: bool = True, graph: bool | None = None) -> list:
+                   fill: bool = False, quiet: bool = True, graph: bool | None = None,
+                   points: np.ndarray | None = None) -> list:
     """`sim.run.simulate` for several (cloud, scene) models at once, on one shared grid shape:
     one Trajectory per model, or the ComputationError that stopped that model's run (the others
-    still finish). Raises InputError for unusable input (as simulate does)."""
+    still finish). Raises InputError for unusable input (as simulate does). `points`: indices of
+    the Gaussians to return (Trajectory.x is then (T, len(points), 3)): diagnose needs only the
+    tracked ones, and mapping every Gaussian back to input coordinates each frame costs more
+    host time than a batched GPU frame."""
     from .run import Trajectory, build_particles, simulate
 
     if frames < 1:
@@ -431,9 +435,10 @@ def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: flo
     solver = BatchedSolver([(p, sc) for (p, _), (_, sc) in zip(built, models)], device, graph=graph)
     t = np.arange(frames, dtype=np.float64) / fps
     ns = [len(cloud) for cloud, _ in models]
-    x0_in = [cloud.means.astype(np.float32) for cloud, _ in models]
-    x0_world = [p.x[:n].astype(np.float64) for (p, _), n in zip(built, ns)]
-    xs = [np.empty((frames, n, 3), np.float32) for n in ns]
+    pick = [np.arange(n) if points is None else np.asarray(points, np.int64) for n in ns]
+    x0_in = [cloud.means[k].astype(np.float32) for (cloud, _), k in zip(models, pick)]
+    x0_world = [p.x[k].astype(np.float64) for (p, _), k in zip(built, pick)]
+    xs = [np.empty((frames, len(k), 3), np.float32) for k in pick]
     for r in range(len(models)):
         xs[r][0] = x0_in[r]
     steps = range(1, frames) if quiet else progress(range(1, frames), desc=f"simulate ×{len(models)}",
@@ -443,8 +448,7 @@ def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: flo
         x_all = solver.positions()
         for r, ((_, tf), alive) in enumerate(zip(built, solver.alive)):
             if alive:
-                a = int(solver.offsets[r])
-                xw = x_all[a:a + ns[r]]
+                xw = x_all[int(solver.offsets[r]) + pick[r]]
                 xs[r][i] = x0_in[r] + tf.displacement_to_input(xw - x0_world[r]).astype(np.float32)
         if not solver.alive.any():
             break
@@ -456,7 +460,9 @@ def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: flo
             continue
         if solver.over_budget[r]:  # stiff parts: the unbatched solver decides (rigid / softened / error)
             try:
-                out.append(simulate(*models[r], frames, fps, device=device, fill=fill, quiet=True))
+                alone = simulate(*models[r], frames, fps, device=device, fill=fill, quiet=True)
+                alone.x = alone.x[:, pick[r]]
+                out.append(alone)
             except ComputationError as error:
                 out.append(error)
             continue
