@@ -179,6 +179,12 @@ def main() -> None:
             same = all((loop_out / f.name).read_bytes() == (first_out / f.name).read_bytes() for f in files)
             print(f"per-file CLI loop: {len(files)} files in {loop_wall:.1f} s: {loop_rate:.2f} assets/s; "
                   f"outputs byte-identical to the batch's: {same}", flush=True)
+            again = work / "out_loop_again"
+            shutil.rmtree(again, ignore_errors=True)
+            again.mkdir()
+            run_loop(files[:1], again, args.device)  # is the single-file command itself repeatable here?
+            print(f"the single-file command run twice on {files[0].name}: byte-identical "
+                  f"{(again / files[0].name).read_bytes() == (loop_out / files[0].name).read_bytes()}", flush=True)
         if not rates:
             raise SystemExit("no batch ran within the time budget")
         best = max(rates, key=rates.get)
