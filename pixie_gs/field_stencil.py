@@ -27,7 +27,10 @@ from functools import lru_cache
 
 import numpy as np
 
-CPU_CANDIDATES_PER_CHUNK = 4_000_000  # (Gaussian, voxel) candidates filtered per numpy step (~36 MB)
+# CPU steps stay below numpy's 4 MB huge-page threshold: on this kind of VM, fresh huge-page-backed
+# temporaries cost more kernel time (zeroing, compaction) than the arithmetic on them.
+CPU_CANDIDATES_PER_CHUNK = 900_000  # (Gaussian, voxel) candidates filtered per numpy step (~3.6 MB of maha)
+CPU_GAUSSIANS_PER_STEP = 65_536  # Gaussians per geometry step (float64 rows of 0.5 MB)
 CPU_PAIRS_PER_PRODUCT = 40_000_000  # accepted pairs summed per sparse product (~320 MB of triples)
 CUDA_CANDIDATES_PER_CHUNK = 16_000_000  # as the reference: same peak GPU memory
 REACH_STEP = 0.25  # voxels: reach groups (the reference uses 0.5)
@@ -167,7 +170,12 @@ def _cpu_sums(means, cov, alphas, feats, n, filter_voxels, cutoff_sigma, max_rad
     pad = int(math.ceil(max_radius_voxels - 0.5 + HALF_DIAGONAL))
     np_ = n + 2 * pad
     rows = batch_size * np_ ** 3
-    coef, base, key = _geometry(means, cov, n, filter_voxels, cutoff_sigma, max_radius_voxels)
+    m = len(means)
+    coef, base, key = np.empty((m, 10), np.float32), np.empty((m, 3), np.int64), np.empty(m, np.int64)
+    for s in range(0, m, CPU_GAUSSIANS_PER_STEP):  # small temporaries: cache-resident, reused heap memory
+        e = min(m, s + CPU_GAUSSIANS_PER_STEP)
+        coef[s:e], base[s:e], key[s:e] = _geometry(means[s:e], cov[s:e], n, filter_voxels, cutoff_sigma,
+                                                   max_radius_voxels)
     b = np.zeros(len(means), np.int64) if bidx is None else bidx
     index_t = np.int32 if rows < 2 ** 31 else np.int64
     base_flat = (((b * np_ + base[:, 0] + pad) * np_ + base[:, 1] + pad) * np_ + base[:, 2] + pad).astype(index_t)
@@ -179,23 +187,24 @@ def _cpu_sums(means, cov, alphas, feats, n, filter_voxels, cutoff_sigma, max_rad
     keys, starts = np.unique(key[order], return_index=True)
     ends = np.append(starts[1:], len(order))
     cut2 = np.float32(cutoff_sigma ** 2)
-    pending: list = []
-    held = 0
+    # Accepted pairs go into two buffers allocated once (large: huge pages, few page faults) in the
+    # processing order of the Gaussians (`order`), so a product's columns are a slice of `order`.
+    cap = CPU_PAIRS_PER_PRODUCT + chunk
+    w_buf, v_buf = np.empty(cap, np.float32), np.empty(cap, index_t)
+    counts = np.empty(len(order), np.int64)
+    held, first = 0, 0  # pairs in the buffers; position in `order` of their first Gaussian
 
-    def flush() -> None:
-        nonlocal pending, held
-        if not pending:
+    def flush(last: int) -> None:
+        nonlocal held, first
+        if last == first:
             return
-        w = np.concatenate([p[0] for p in pending])
+        w = w_buf[:held]
         torch.from_numpy(w).mul_(-0.5).exp_()  # in place: maha → exp(-½ maha)
-        idx = np.concatenate([p[1] for p in pending])
-        counts = np.concatenate([p[2] for p in pending])
-        cols = np.concatenate([p[3] for p in pending])
-        ptr = np.zeros(len(cols) + 1, index_t if len(w) < 2 ** 31 else np.int64)
-        np.cumsum(counts, out=ptr[1:])
-        mat = sp.csc_matrix((w, idx.astype(ptr.dtype, copy=False), ptr), shape=(rows, len(cols)))
-        acc[:] += mat @ weighted[cols]
-        pending, held = [], 0
+        ptr = np.zeros(last - first + 1, index_t if held < 2 ** 31 else np.int64)
+        np.cumsum(counts[first:last], out=ptr[1:])
+        mat = sp.csc_matrix((w, v_buf[:held].astype(ptr.dtype, copy=False), ptr), shape=(rows, last - first))
+        acc[:] += mat @ weighted[order[first:last]]
+        held, first = 0, last
 
     for k, s, e in zip(keys.tolist(), starts.tolist(), ends.tolist()):
         off = _group_offsets(k)
@@ -203,16 +212,18 @@ def _cpu_sums(means, cov, alphas, feats, n, filter_voxels, cutoff_sigma, max_rad
         off_flat = ((off[:, 0] * np_ + off[:, 1]) * np_ + off[:, 2]).astype(index_t)
         per = max(1, chunk // len(off))
         for c0 in range(s, e, per):
-            g = order[c0:min(e, c0 + per)]
+            c1 = min(e, c0 + per)
+            g = order[c0:c1]
             maha = coef[g] @ basis  # (G, K)
             hit = np.flatnonzero(maha <= cut2)
             gi, ki = np.divmod(hit, len(off))
-            counts = np.bincount(gi, minlength=len(g))
-            pending.append((maha.reshape(-1)[hit], base_flat[g][gi] + off_flat[ki], counts, g))
+            counts[c0:c1] = np.bincount(gi, minlength=len(g))
+            np.take(maha.reshape(-1), hit, out=w_buf[held:held + len(hit)])
+            np.add(base_flat[g][gi], off_flat[ki], out=v_buf[held:held + len(hit)])
             held += len(hit)
             if held >= CPU_PAIRS_PER_PRODUCT:
-                flush()
-    flush()
+                flush(c1)
+    flush(len(order))
     return acc
 
 
