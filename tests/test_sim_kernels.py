@@ -214,10 +214,9 @@ def test_chunked_p2g_matches_the_plain_atomic_kernel(device, order):
     assert np.allclose(fast[1].reshape(-1, 3).sum(0), momentum, rtol=1e-4, atol=1e-9)
 
 
-def test_solver_with_fast_p2g_agrees_with_the_atomic_one(device, monkeypatch):
+def test_solver_with_fast_p2g_agrees_with_the_atomic_one(device):
     from pixie_gs.sim import solver as solver_module
 
-    monkeypatch.setattr(solver_module, "MAX_REINDEX_SUBSTEPS", solver_module.SORT_SUBSTEPS)  # re-index often
     scene = scene_for_tests()
     p = mixed_block(scene)
     runs = []
@@ -228,22 +227,3 @@ def test_solver_with_fast_p2g_agrees_with_the_atomic_one(device, monkeypatch):
         runs.append(sim.positions())
     assert sim.substeps_last_frame > 2 * solver_module.SORT_SUBSTEPS  # the in-frame index re-sorts ran
     assert np.abs(runs[0] - runs[1]).max() < 1e-5
-
-
-def test_reindex_interval_follows_the_drift_bound(device):
-    """The chunked P2G's cell order is refreshed before any particle can have drifted half a cell:
-    interval × v·dt ≤ ½ dx whenever the floor of SORT_SUBSTEPS allows it; a still scene waits the longest."""
-    from pixie_gs.sim import solver as solver_module
-
-    scene = scene_for_tests()
-    sim = MPMSolver(mixed_block(scene), scene, device)
-    dt = sim.dt
-    assert sim.reindex_interval(0.0, dt) == solver_module.MAX_REINDEX_SUBSTEPS
-    for cells_per_substep in (1e-4, 0.003, 0.01, 0.05, 0.5):
-        v = cells_per_substep * sim.dx / dt
-        k = sim.reindex_interval(v, dt)
-        assert solver_module.SORT_SUBSTEPS <= k <= solver_module.MAX_REINDEX_SUBSTEPS
-        if k > solver_module.SORT_SUBSTEPS:
-            assert k * v * dt <= solver_module.REINDEX_DRIFT_CELLS * sim.dx * (1 + 1e-9)
-        if k < solver_module.MAX_REINDEX_SUBSTEPS:
-            assert (k + 1) * v * dt > solver_module.REINDEX_DRIFT_CELLS * sim.dx * (1 - 1e-9)

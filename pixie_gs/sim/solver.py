@@ -36,9 +36,7 @@ from .sort import cell_order, cell_runs, chunk_runs, permute_in_place
 from .state import ARRAY_FIELDS, State
 
 CHUNK = 8  # particles per P2G thread while the particles are in no cell order (sort_every = 0)
-SORT_SUBSTEPS = 4  # with sorting on, the chunked P2G's cell order is refreshed at least every this many substeps …
-REINDEX_DRIFT_CELLS = 0.5  # … or more rarely, as long as no particle can drift this many cells (dx) in between
-MAX_REINDEX_SUBSTEPS = 64
+SORT_SUBSTEPS = 4  # with sorting on, the chunked P2G's cell order is refreshed every this many substeps
 SORT_MIN_PARTICLES = 50_000  # on a GPU, smaller runs fit in cache and are launch-bound: no sorting
 
 FAR = 1.0e30  # "unbounded" for regions and time windows passed to kernels
@@ -444,17 +442,15 @@ class MPMSolver:
         if self.sort_every > 0 and self.frame > 0 and self.frame % self.sort_every == 0:
             self._resort()
         t_sorted = clock()
-        stats = self.frame_stats()
-        n_sub = self.substeps_for(frame_dt_s, stats)
+        n_sub = self.substeps_for(frame_dt_s)
         t_stats = clock()
         dt = frame_dt_s / n_sub
-        reindex_every = self.reindex_interval(self._speed_bound(frame_dt_s, stats.max_speed_mps), dt)
         t0 = self.time_s
         self.grid_mass.zero_()
         self.grid_momentum.zero_()
         self.grid_fixed.zero_()
         for s in range(n_sub):
-            if self.sort_every > 0 and self.p2g_kind == "chunked" and s > 0 and s % reindex_every == 0:
+            if self.sort_every > 0 and self.p2g_kind == "chunked" and s > 0 and s % SORT_SUBSTEPS == 0:
                 self._reindex()  # all on the device: the launches queue behind the substeps
             t = t0 + s * dt
             self._apply_impulses(t + dt)
@@ -468,16 +464,6 @@ class MPMSolver:
         self._guard(dt)
         self.timing = {"sort_s": t_sorted - t_start, "stats_s": t_stats - t_sorted,
                        "launch_s": t_launched - t_stats, "guard_s": clock() - t_launched}
-
-    def reindex_interval(self, v_bound_mps: float, dt_s: float) -> int:
-        """Substeps between fresh cell orders for the chunked P2G: as many as a particle moving at
-        `v_bound_mps` (m/s) needs to drift REINDEX_DRIFT_CELLS cells, within [SORT_SUBSTEPS,
-        MAX_REINDEX_SUBSTEPS]. Any order gives the same sums (p2g_chunked); a stale one only costs
-        extra atomics, and a fresh one costs a device sort, so a slow scene re-indexes rarely."""
-        drift_m = v_bound_mps * dt_s
-        if not drift_m > 0.0:
-            return MAX_REINDEX_SUBSTEPS
-        return int(min(MAX_REINDEX_SUBSTEPS, max(SORT_SUBSTEPS, REINDEX_DRIFT_CELLS * self.dx / drift_m)))
 
     def _apply_impulses(self, t_end: float) -> None:
         for i, imp in enumerate(self.scene.impulses):
