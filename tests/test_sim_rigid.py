@@ -23,6 +23,17 @@ from test_sim_kernels import device  # noqa: F401  (the per-device fixture)
 from test_sim_physics import join
 
 G = 9.81  # m/s²
+
+
+@pytest.fixture(autouse=True)
+def stage_lines_on():
+    """The per-part lines are stage() lines: print them here whatever an earlier test set."""
+    from pixie_gs import progress
+
+    quiet = progress.is_quiet()
+    progress.set_quiet(False)
+    yield
+    progress.set_quiet(quiet)
 AL = {"E": 7e10, "nu": 0.33, "density": 2700.0, "material_id": METAL}  # aluminium
 
 

@@ -294,6 +294,7 @@ class _SceneParser:
         self.source = str(source) if source is not None else "scene"
 
     def fail(self, key: str, problem: str) -> InputError:
+        key = "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in key)  # one line, whatever the key
         key = key if len(key) <= 80 else key[:80] + "…"
         return InputError(f"key '{key}': {problem}", self.source)
 
