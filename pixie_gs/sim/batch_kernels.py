@@ -17,7 +17,8 @@ from __future__ import annotations
 import warp as wp
 
 from .constitutive import MaterialParams, update_material
-from .kernels import GridInfo, bspline_weights, stencil_of
+from .kernels import GridInfo, advected_position, bspline_weights, mls_affine, stencil_of
+from .reduce import fails_guard
 
 
 @wp.func
@@ -50,7 +51,7 @@ def p2g_batched(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.ar
     wz = bspline_weights(fx[2])
     m = mass[p]
     is_fixed = fixed[p]
-    affine = (-dt * volume[p] * 4.0 * grid.inv_dx * grid.inv_dx) * stress[p] + m * C[p]
+    affine = mls_affine(dt, volume[p], stress[p], m, C[p], grid)
     mv = m * v[p]
     for i in range(3):
         for j in range(3):
@@ -179,10 +180,7 @@ def g2p_batched(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.ar
                 new_C = new_C + (4.0 * grid.inv_dx * grid.inv_dx * w) * wp.outer(gv, dpos)
     v[p] = new_v
     C[p] = new_C
-    xn = (x[p] + dt * new_v - grid.origin) * grid.inv_dx
-    for d in range(3):
-        xn[d] = wp.clamp(xn[d], 1.0, float(grid.dims[d]) - 2.001)
-    x[p] = grid.origin + xn * grid.dx
+    x[p] = advected_position(x[p], new_v, dt, grid)
     Fn = (wp.identity(n=3, dtype=float) + dt * new_C) * F[p]
     Fn, Jp_new, tau = update_material(Fn, new_C, mu[p], lam[p], material[p], yield_stress[p], Jp[p], dt, mp)
     F[p] = Fn
@@ -202,14 +200,8 @@ def run_stats(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), F: wp.arra
     r = run[p]
     if alive[r] == 0:
         return
-    xp = x[p]
     speed = wp.length(v[p])
-    Fp = F[p]
-    norm = wp.sqrt(wp.ddot(Fp, Fp))
-    J = wp.determinant(Fp)
-    finite = wp.isfinite(xp[0]) and wp.isfinite(xp[1]) and wp.isfinite(xp[2])
-    finite = finite and wp.isfinite(speed) and wp.isfinite(norm) and wp.isfinite(J)
-    if (not finite) or speed > v_limit[r] or norm > max_stretch or not (J > 1.0 / max_stretch):
+    if fails_guard(x[p], speed, F[p], v_limit[r], max_stretch):
         wp.atomic_add(bad, r, material[p], 1)
     elif fixed[p] == 0:
         if speed > 0.0:

@@ -36,6 +36,22 @@ def stencil_of(xp: wp.vec3, grid: GridInfo):
     return base, xg - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
 
 
+@wp.func
+def mls_affine(dt: float, volume: float, stress: wp.mat33, mass: float, C: wp.mat33, grid: GridInfo) -> wp.mat33:
+    """MLS-MPM: the stress (Kirchhoff, stored by the last G2P) and APIC affine momentum share one
+    matrix; D⁻¹ = 4/dx² for quadratic B-splines."""
+    return (-dt * volume * 4.0 * grid.inv_dx * grid.inv_dx) * stress + mass * C
+
+
+@wp.func
+def advected_position(xp: wp.vec3, new_v: wp.vec3, dt: float, grid: GridInfo) -> wp.vec3:
+    """x + dt·v (m), kept where the particle's B-spline stencil stays inside the grid."""
+    xn = (xp + dt * new_v - grid.origin) * grid.inv_dx
+    for d in range(3):
+        xn[d] = wp.clamp(xn[d], 1.0, float(grid.dims[d]) - 2.001)
+    return grid.origin + xn * grid.dx
+
+
 @wp.kernel
 def p2g(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33),
         stress: wp.array(dtype=wp.mat33), volume: wp.array(dtype=float), mass: wp.array(dtype=float),
@@ -48,9 +64,7 @@ def p2g(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtyp
     wz = bspline_weights(fx[2])
     m = mass[p]
     is_fixed = fixed[p]
-    # MLS-MPM: stress (Kirchhoff, stored by the last G2P) and APIC affine momentum share one
-    # matrix; D⁻¹ = 4/dx² for quadratic B-splines
-    affine = (-dt * volume[p] * 4.0 * grid.inv_dx * grid.inv_dx) * stress[p] + m * C[p]
+    affine = mls_affine(dt, volume[p], stress[p], m, C[p], grid)
     mv = m * v[p]
     for i in range(3):
         for j in range(3):
@@ -116,7 +130,7 @@ def p2g_chunked(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.ar
         wy = bspline_weights(fx[1])
         wz = bspline_weights(fx[2])
         m = mass[p]
-        affine = (-dt * volume[p] * 4.0 * grid.inv_dx * grid.inv_dx) * stress[p] + m * C[p]
+        affine = mls_affine(dt, volume[p], stress[p], m, C[p], grid)
         mv = m * v[p]
         held = fixed[p] != 0
         for i in range(3):
@@ -219,11 +233,7 @@ def g2p(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtyp
                 new_C = new_C + (4.0 * grid.inv_dx * grid.inv_dx * w) * wp.outer(gv, dpos)
     v[p] = new_v
     C[p] = new_C
-    # keep particles where their B-spline stencil stays inside the grid
-    xn = (x[p] + dt * new_v - grid.origin) * grid.inv_dx
-    for d in range(3):
-        xn[d] = wp.clamp(xn[d], 1.0, float(grid.dims[d]) - 2.001)
-    x[p] = grid.origin + xn * grid.dx
+    x[p] = advected_position(x[p], new_v, dt, grid)
 
     Fn = (wp.identity(n=3, dtype=float) + dt * new_C) * F[p]
     Fn, Jp_new, tau = update_material(Fn, new_C, mu[p], lam[p], material[p], yield_stress[p], Jp[p], dt, mp)

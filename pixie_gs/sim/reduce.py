@@ -32,6 +32,17 @@ class FrameStats:
         return int(self.bad_per_material.sum())
 
 
+@wp.func
+def fails_guard(xp: wp.vec3, speed: float, Fp: wp.mat33, v_limit: float, max_stretch: float) -> bool:
+    """The divergence guard's test for one particle: non-finite x/v/F, speed (m/s) > v_limit,
+    ‖F‖ > max_stretch or det F ≤ 1/max_stretch (reference_stats is its numpy twin)."""
+    norm = wp.sqrt(wp.ddot(Fp, Fp))
+    J = wp.determinant(Fp)
+    finite = wp.isfinite(xp[0]) and wp.isfinite(xp[1]) and wp.isfinite(xp[2])
+    finite = finite and wp.isfinite(speed) and wp.isfinite(norm) and wp.isfinite(J)
+    return (not finite) or speed > v_limit or norm > max_stretch or not (J > 1.0 / max_stretch)
+
+
 @wp.kernel
 def particle_stats(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), F: wp.array(dtype=wp.mat33),
                    Jp: wp.array(dtype=float), material: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
@@ -45,14 +56,8 @@ def particle_stats(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), F: wp
     wave_max = float(0.0)
     p = t
     while p < n:
-        xp = x[p]
         speed = wp.length(v[p])
-        Fp = F[p]
-        norm = wp.sqrt(wp.ddot(Fp, Fp))
-        J = wp.determinant(Fp)
-        finite = wp.isfinite(xp[0]) and wp.isfinite(xp[1]) and wp.isfinite(xp[2])
-        finite = finite and wp.isfinite(speed) and wp.isfinite(norm) and wp.isfinite(J)
-        if (not finite) or speed > v_limit or norm > max_stretch or not (J > 1.0 / max_stretch):
+        if fails_guard(x[p], speed, F[p], v_limit, max_stretch):
             wp.atomic_add(bad, material[p], 1)
         elif fixed[p] == 0:
             speed_max = wp.max(speed_max, speed)
