@@ -22,7 +22,9 @@ the other (a difference of at most α·exp(-½·cutoff²) ≈ 0.011·α at that 
 """
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Iterator
 from functools import lru_cache
 
 import numpy as np
@@ -247,18 +249,39 @@ def _torch_sums(means, covariances, alphas, features, n, filter_voxels, cutoff_s
     keys, counts = torch.unique_consecutive(key[order], return_counts=True)
     cut2 = cutoff_sigma ** 2
     start = 0
-    for k, cnt in zip(keys.tolist(), counts.tolist()):  # one host sync for the group table
-        off_np = _group_offsets(k)
-        off = torch.as_tensor(off_np, device=dev)
-        basis = torch.as_tensor(_basis(off_np), device=dev)
-        off_flat = (off[:, 0] * np_ + off[:, 1]) * np_ + off[:, 2]
-        per = max(1, chunk // len(off_np))
-        for c0 in range(start, start + cnt, per):
-            g = order[c0:min(start + cnt, c0 + per)]
-            maha = coef[g] @ basis
-            gi, ki = torch.nonzero(maha <= cut2, as_tuple=True)
-            gg = g[gi]
-            w = torch.exp(-0.5 * maha[gi, ki])
-            acc.index_add_(0, base_flat[gg] + off_flat[ki], w[:, None] * weighted[gg])
-        start += cnt
+    with _deterministic_sums(torch, dev):
+        for k, cnt in zip(keys.tolist(), counts.tolist()):  # one host sync for the group table
+            start = _add_group(acc, k, cnt, start, order, coef, base_flat, weighted, np_, chunk, cut2, dev, torch)
     return acc
+
+
+@contextlib.contextmanager
+def _deterministic_sums(torch, dev) -> Iterator[None]:
+    """On CUDA, `index_add_` sums with float atomics in whatever order the threads arrive, so the same
+    splat gave different last bits run to run; torch's deterministic mode sums in a fixed order instead
+    (same numbers within float rounding, the same bytes every run). CPU sums are already ordered."""
+    if dev.type != "cuda" or torch.are_deterministic_algorithms_enabled():
+        yield
+        return
+    torch.use_deterministic_algorithms(True)
+    try:
+        yield
+    finally:
+        torch.use_deterministic_algorithms(False)
+
+
+def _add_group(acc, k, cnt, start, order, coef, base_flat, weighted, np_, chunk, cut2, dev, torch) -> int:
+    """Adds the Gaussians order[start:start+cnt] of stencil group `k` into `acc`; returns the next start."""
+    off_np = _group_offsets(k)
+    off = torch.as_tensor(off_np, device=dev)
+    basis = torch.as_tensor(_basis(off_np), device=dev)
+    off_flat = (off[:, 0] * np_ + off[:, 1]) * np_ + off[:, 2]
+    per = max(1, chunk // len(off_np))
+    for c0 in range(start, start + cnt, per):
+        g = order[c0:min(start + cnt, c0 + per)]
+        maha = coef[g] @ basis
+        gi, ki = torch.nonzero(maha <= cut2, as_tuple=True)
+        gg = g[gi]
+        w = torch.exp(-0.5 * maha[gi, ki])
+        acc.index_add_(0, base_flat[gg] + off_flat[ki], w[:, None] * weighted[gg])
+    return start + cnt
