@@ -271,7 +271,9 @@ def test_torchrun_cli_resumes_a_preempted_run(data, tmp_path):
     state = torch.load(str(ckpt) + ".state.pt", weights_only=True)
     first = json.loads(state["history_json"])
     assert state["epoch"] == 1 and state["step"] == 3  # 5 objects in global batches of 2
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    repo = str(Path(__file__).resolve().parents[1])  # kept in front of any PYTHONPATH the machine needs
+    env = {**os.environ, "OMP_NUM_THREADS": "1",
+           "PYTHONPATH": os.pathsep.join(filter(None, [repo, os.environ.get("PYTHONPATH")]))}
     cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
            "-m", "pixie_gs.cli.main", *args, "--epochs", "2", "--resume", "--log-json", str(tmp_path / "log.json")]
     run = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
