@@ -156,3 +156,35 @@ def test_new_categories_keep_their_classes_under_capture_artefacts(name):
     }
     scores = {what: agreement(base, predict(cloud)[0]) for what, cloud in cases.items()}
     assert min(scores.values()) >= AGREEMENT_TARGET, (name, scores)
+
+
+def test_untrained_channels_are_held_as_in_training():
+    """A channel that was zero on every training object (mean and std 0 in the checkpoint's statistics) is
+    held at zero at inference and left out of the in-distribution score; channels that varied are not."""
+    from pixie_gs.model.predict import in_distribution_score, untrained_channels
+
+    stats = {"channels": ["occupancy", "opacity", "sh_energy"], "mean": [1.0, 0.8, 0.0], "std": [0.0, 0.1, 0.0]}
+    meta = {"feature_stats": stats}
+    assert untrained_channels(meta) == ["sh_energy"]
+    assert untrained_channels({}) == []
+    assert in_distribution_score(meta, np.array([1.0, 0.8, 0.4])) == 1.0  # f_rest alone is not "unlike training"
+    assert in_distribution_score(meta, np.array([1.0, 3.0, 0.0])) < 0.1  # opacity far outside still is
+
+
+def test_view_dependent_colour_leaves_the_shipped_checkpoints_classes_and_confidence():
+    """The shipped checkpoint trained on degree-0 splats (its sh_energy statistics are 0): a glass bottle
+    with degree-3 ‖f_rest‖ = 0.5 — the case that flipped 99 % of its classes and zeroed its confidence
+    (docs/model_card.md) — now keeps the clean prediction's classes and confidence exactly, since the
+    DC colour, the only other place f_rest could enter, is unchanged."""
+    from pixie_gs.dataset.assemble import build_object
+    from pixie_gs.dataset.generate import object_seed
+    from pixie_gs.dataset.labels import load_class_table
+
+    table = load_class_table()
+    index = list(table).index("glass_bottles")
+    clean, _ = build_object(table["glass_bottles"], object_seed(77, "test", index), 4000)
+    base, base_conf = predict(clean)
+    classes, conf = predict(with_f_rest(clean, 0.5, 3, np.random.default_rng(1)))
+    assert agreement(base, classes) == 1.0
+    np.testing.assert_allclose(conf, base_conf, atol=1e-6)
+    assert base_conf.mean() > 0.05

@@ -97,6 +97,20 @@ def object_feature_summary(values, occupied):
     return torch.cat([means, share[:, None]], 1)
 
 
+def untrained_channels(meta: dict) -> list[str]:
+    """Grid channels that were zero on every training object (mean and std 0 in meta["feature_stats"]).
+
+    The network never saw them vary, so its response to them is untrained: inference holds them at zero
+    as in training, and the in-distribution score leaves them out. Example: `sh_energy` (‖f_rest‖) for a
+    checkpoint trained on degree-0 splats, where any view-dependent colour used to flip classes."""
+    stats = meta.get("feature_stats") if isinstance(meta, dict) else None
+    try:
+        names, mean, std = list(stats["channels"]), list(stats["mean"]), list(stats["std"])
+    except (TypeError, KeyError):
+        return []
+    return [n for n, m, s in zip(names, mean, std) if m == 0 and s == 0]
+
+
 def in_distribution_score(meta: dict, summary: np.ndarray) -> float:
     """1 when an object's `object_feature_summary` lies within OOD_FREE_Z (RMS z-score) of the training
     objects' statistics stored in the checkpoint (meta["feature_stats"]), decaying beyond; 1 for a
@@ -110,7 +124,11 @@ def in_distribution_score(meta: dict, summary: np.ndarray) -> float:
     f = np.asarray(summary, np.float64).reshape(-1)
     if mu.shape != f.shape or sd.shape != f.shape:
         return 1.0
-    d = float(np.sqrt(np.mean(((f - mu) / sd) ** 2)))
+    untrained = set(untrained_channels(meta))
+    keep = np.array([n not in untrained for n in stats.get("channels", [])] or [True] * len(f))
+    if keep.shape != f.shape:
+        keep = np.ones(len(f), bool)
+    d = float(np.sqrt(np.mean(((f - mu) / sd)[keep] ** 2)))
     return float(np.exp(-0.5 * (max(0.0, d - OOD_FREE_Z) / OOD_WIDTH) ** 2))
 
 
@@ -126,6 +144,10 @@ def _forward(loaded: LoadedModel, values, channel_names: list[str]):
     """Raw (logits, physical clamped to the label ranges) of full grid tensors."""
     import torch
 
+    held = [channel_names.index(n) for n in untrained_channels(loaded.meta) if n in channel_names]
+    if held:
+        values = values.clone()
+        values[:, held] = 0
     x = select_inputs(values, channel_names, loaded.config.input_channels)
     with torch.inference_mode():
         if x.device.type == "cuda":
