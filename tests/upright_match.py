@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 MATCH_RATIO = 1.2  # test / floor, mean and 95th percentile: exact symmetries measure ≤ 1.2 (a sphere and two
 # generated balls ≤ 1.06; picture frames upside down 1.01–1.20 / 0.99–1.16). A filled object hides
 # part of a tilt (its interior matches whatever the tilt): generated ducks tilted 8° measure 1.09–1.25 / 1.03–1.22,
-# tilted 13° 1.18–1.46 / 1.13–1.73, so a duck tilted up to ~10° may pass (the spacing rule rejected 11° by its
+# tilted 13° 1.18–1.46 / 1.13–1.73, so a duck tilted by up to ~13° may pass (the spacing rule rejected 11° by its
 # percentile: 2.5–3.0 > 2.4); a stone tilted 11° 2.1 / 2.8; a cardboard box upside down (its tape on top) 2.1 / 2.2
 POINTS = 2000  # first-half Gaussians matched (against all of the second half)
 
