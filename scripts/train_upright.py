@@ -3,17 +3,18 @@
 Objects of every class from the dataset's TRAIN seeds (object_seed(SEED, "train", i)), 4,000–20,000
 Gaussians, each turned by a random rotation, go through the same steps as `prepare` (floater
 mask, robust spacing) and give their up candidates and descriptors; a candidate within 10° of the
-true up (the rotation applied to +z) is a right answer. Objects the generator laid off their base
-(a can or bottle on its side, a leaning cushion: a quarter of cans, a fifth of bottles, 30 % of
-cushions) are left out of the fit: their shape alone cannot say they are not standing, and
-teaching both makes every tall cylinder a coin toss. A one-hidden-layer perceptron is fitted
-so that the right candidates of each object win the softmax over its candidates (listwise
-cross-entropy, Adam, weight decay). The VAL seeds report the held-out accuracy; the TEST seeds
-(benchmarks/bench_prepare.py) are never looked at here.
+true up (the rotation applied to +z) is a right answer, and for an object with none that close
+(a bush on its root, a duck on its round bottom) its nearest candidate within 20°. Objects the
+generator laid off their base (a can or bottle on its side, a leaning cushion: a quarter of cans,
+a fifth of bottles, 30 % of cushions) are left out of the fit: their shape alone cannot say they
+are not standing, and teaching both makes every tall cylinder a coin toss. A one-hidden-layer
+perceptron is fitted so that the right candidates of each object win the softmax over its
+candidates (listwise cross-entropy, Adam, weight decay). The VAL seeds report the held-out
+accuracy; the TEST seeds (benchmarks/bench_prepare.py) are never looked at here.
 
-usage: python scripts/train_upright.py [--objects 936] [--val 156] [--cache /tmp/upright2.npz]
-(14 minutes on the shared 2-core CPU at load ~15, nearly all of it building the objects and their
-descriptors; --cache keeps those, so a refit takes seconds)
+usage: python scripts/train_upright.py --objects 2600 --val 260 --hidden 32 --workers 2 [--cache /tmp/up.npz]
+(15 minutes on the shared 2-core CPU at load average ~5, nearly all of it building the objects
+and their descriptors; --cache keeps those, so a refit takes seconds)
 """
 from __future__ import annotations
 
@@ -26,12 +27,15 @@ from pathlib import Path
 import numpy as np
 
 RIGHT_DEG = 10.0
+NEAR_DEG = 20.0
 SEED = 0
 
 
-def object_candidates(split: str, count: int, seed: int = SEED) -> list[dict]:
-    """Per object: class, candidate ups (K,3), descriptors (K,F), true up (3,), and whether the
-    generator laid it off its base (a can or bottle lying on its side, a leaning cushion)."""
+def one_object(split: str, i: int, seed: int = SEED) -> dict:
+    """Object `i` of `split`: class, candidate ups (K,3), descriptors (K,F), true up (3,), and
+    whether the generator laid it off its base (a can or bottle lying on its side, a leaning
+    cushion). Its Gaussian count and rotation come from its own generator ([seed, split, i]), so
+    objects can be built in any order or in parallel."""
     from scipy.spatial.transform import Rotation
 
     from pixie_gs.dataset.assemble import build_object
@@ -39,31 +43,47 @@ def object_candidates(split: str, count: int, seed: int = SEED) -> list[dict]:
     from pixie_gs.dataset.labels import load_class_table
     from pixie_gs.prepare.density import floater_mask, robust_spacing
     from pixie_gs.prepare.upright import candidates
-    from pixie_gs.progress import progress
 
     table = load_class_table()
     names = sorted(table)
-    rng = np.random.default_rng([seed, 7 if split == "train" else 8])
-    out = []
-    for i in progress(range(count), desc=f"{split} objects", unit="object"):
-        name = names[i % len(names)]
-        cloud, record = build_object(table[name], object_seed(seed, split, i), int(rng.integers(4000, 20001)))
-        R = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
-        x = cloud.means.astype(np.float64) @ R.T
-        cloud.means = x.astype(np.float32)
-        cloud.set_covariances(R @ cloud.covariances() @ R.T)
-        alpha = cloud.opacities.astype(np.float64)
-        spacing = robust_spacing(x)
-        keep = ~floater_mask(x, alpha, spacing)[0]
-        cands = candidates(x[keep], alpha[keep], cloud.rotations[keep], cloud.log_scales[keep], spacing)
-        out.append({"name": name, "ups": np.stack([c.up for c in cands]),
-                    "features": np.stack([c.features for c in cands]), "truth": R @ np.array([0.0, 0.0, 1.0]),
-                    "off_base": bool(record["shape"].get("lying") or record["shape"].get("leaning"))})
-    return out
+    rng = np.random.default_rng([seed, 7 if split == "train" else 8, i])
+    name = names[i % len(names)]
+    cloud, record = build_object(table[name], object_seed(seed, split, i), int(rng.integers(4000, 20001)))
+    R = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
+    x = cloud.means.astype(np.float64) @ R.T
+    cloud.means = x.astype(np.float32)
+    cloud.set_covariances(R @ cloud.covariances() @ R.T)
+    alpha = cloud.opacities.astype(np.float64)
+    spacing = robust_spacing(x)
+    keep = ~floater_mask(x, alpha, spacing)[0]
+    cands = candidates(x[keep], alpha[keep], cloud.rotations[keep], cloud.log_scales[keep], spacing)
+    return {"name": name, "ups": np.stack([c.up for c in cands]),
+            "features": np.stack([c.features for c in cands]), "truth": R @ np.array([0.0, 0.0, 1.0]),
+            "off_base": bool(record["shape"].get("lying") or record["shape"].get("leaning"))}
+
+
+def _one(args: tuple[str, int]) -> dict:
+    return one_object(*args)
+
+
+def object_candidates(split: str, count: int, workers: int = 1) -> list[dict]:
+    """Objects 0..count-1 of `split` (one_object), on `workers` processes."""
+    from pixie_gs.progress import progress
+
+    jobs = [(split, i) for i in range(count)]
+    if workers <= 1:
+        return [_one(j) for j in progress(jobs, desc=f"{split} objects", unit="object")]
+    import multiprocessing as mp
+
+    with mp.get_context("spawn").Pool(workers) as pool:
+        return list(progress(pool.imap(_one, jobs, chunksize=8), total=count, desc=f"{split} objects",
+                             unit="object"))
 
 
 def pack(objs: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(features (B,K,F) zero-padded, candidate mask (B,K), right-answer mask (B,K))."""
+    """(features (B,K,F) zero-padded, candidate mask (B,K), right-answer mask (B,K)). Right: within
+    RIGHT_DEG of the truth; for an object with none that close (a bush on its root, a duck on its
+    round bottom: no candidate is exact), its nearest candidate when within NEAR_DEG."""
     k = max(len(o["ups"]) for o in objs)
     f = objs[0]["features"].shape[1]
     X = np.zeros((len(objs), k, f))
@@ -72,7 +92,10 @@ def pack(objs: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     for i, o in enumerate(objs):
         n = len(o["ups"])
         X[i, :n], M[i, :n] = o["features"], True
-        Y[i, :n] = o["ups"] @ o["truth"] > np.cos(np.radians(RIGHT_DEG))
+        cos = o["ups"] @ o["truth"]
+        Y[i, :n] = cos > np.cos(np.radians(RIGHT_DEG))
+        if not Y[i].any() and cos.max() > np.cos(np.radians(NEAR_DEG)):
+            Y[i, int(np.argmax(cos))] = True
     return X, M, Y
 
 
@@ -111,12 +134,12 @@ def evaluate(objs: list[dict], model: dict) -> np.ndarray:
     return np.array(errs)
 
 
-def _load_or_build(cache: Path | None, split: str, count: int) -> list[dict]:
+def _load_or_build(cache: Path | None, split: str, count: int, workers: int = 1) -> list[dict]:
     path = None if cache is None else cache.with_name(f"{cache.stem}_{split}{count}.npz")
     if path is not None and path.exists():
         data = np.load(path, allow_pickle=True)
         return list(data["objs"])
-    objs = object_candidates(split, count)
+    objs = object_candidates(split, count, workers)
     if path is not None:
         np.savez(path, objs=np.array(objs, dtype=object))
     return objs
@@ -126,26 +149,27 @@ def main() -> int:
     from pixie_gs.prepare.upright import FEATURES, WEIGHTS
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--objects", type=int, default=936)
-    ap.add_argument("--val", type=int, default=156)
-    ap.add_argument("--hidden", type=int, default=16)
+    ap.add_argument("--objects", type=int, default=2600)
+    ap.add_argument("--val", type=int, default=260)
+    ap.add_argument("--hidden", type=int, default=32)
     ap.add_argument("--decay", type=float, default=1e-3)
     ap.add_argument("--epochs", type=int, default=600)
+    ap.add_argument("--workers", type=int, default=1, help="processes building the objects")
     ap.add_argument("--cache", default=None, help="reuse/save descriptors here (e.g. /tmp/upright.npz)")
     ap.add_argument("--out", default=str(WEIGHTS))
     args = ap.parse_args()
     cache = Path(args.cache) if args.cache else None
     t0 = time.perf_counter()
-    train = _load_or_build(cache, "train", args.objects)
-    val = _load_or_build(cache, "val", args.val)
+    train = _load_or_build(cache, "train", args.objects, args.workers)
+    val = _load_or_build(cache, "val", args.val, args.workers)
     kept = [o for o in train if not o["off_base"]]
     X, M, Y = pack(kept)
     recall = float(Y.any(axis=1).mean())
     model = fit(X, M, Y, args.hidden, args.decay, args.epochs)
     tr, va = evaluate(train, model), evaluate(val, model)
     print(f"trained on {len(kept)} of {len(train)} objects (the rest lie or lean off their base); "
-          f"candidates: {M.sum(1).mean():.1f} per object; a right one (≤ {RIGHT_DEG:.0f}°) among them for "
-          f"{recall * 100:.0f} % of them")
+          f"candidates: {M.sum(1).mean():.1f} per object; a right one (≤ {RIGHT_DEG:.0f}°, else the "
+          f"nearest if ≤ {NEAR_DEG:.0f}°) among them for {recall * 100:.0f} % of them")
     for label, e in (("train", tr), ("val", va)):
         print(f"{label}: {len(e)} objects, median {np.median(e):.1f}°, ≤ 20° on {np.mean(e <= 20) * 100:.0f} %, "
               f"worst {e.max():.1f}°")

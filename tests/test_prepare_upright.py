@@ -14,7 +14,7 @@ from pixie_gs.dataset.generate import object_seed
 from pixie_gs.dataset.labels import load_class_table
 from pixie_gs.prepare import prepare_cloud
 from pixie_gs.prepare.upright import FEATURES, load_scorer
-from upright_match import angle_deg, chamfer_over_spacing, symmetric_error
+from upright_match import angle_deg, distance_over_floor, symmetric_error
 
 OBJECTS = 20
 GAUSSIANS = 5000
@@ -42,7 +42,8 @@ def test_symmetry_judge_on_analytic_shapes(shape, up, same):
     labels = np.zeros(len(cloud), np.int32)
     _, counted = symmetric_error(cloud.means, labels, np.asarray(up), np.array([0.0, 0.0, 1.0]))
     assert counted == same
-    assert max(chamfer_over_spacing(cloud.means, labels, np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.0]))) < 1e-9
+    assert max(distance_over_floor(cloud.means, labels, np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.0]))) \
+        < 1.01  # the truth against itself is the floor (the best turn found may differ from 0 by ≤ 0.1°)
 
 
 def test_part_labels_break_a_symmetry():

@@ -3,12 +3,18 @@
 Shared by tests/test_prepare_upright.py and benchmarks/bench_prepare.py. An estimated up is as good
 as the true one when the object, put upright by the estimate, is the same point set (positions and
 part labels) as the object put upright by the truth, up to a turn about the vertical: a ball, a
-cube or a round fruit rests the same on any side. The two sets are compared by the symmetric mean
-Chamfer distance (nearest neighbour with the same part label), minimised over the turn about the
-vertical (10° steps one way, then 1° both ways), and the 95th percentile of the nearest-neighbour
-distances at that turn, against the objects' own Gaussian spacing (median nearest-neighbour
-distance): a perfect symmetry gives about one spacing (two at the 95th percentile), since the
-turned Gaussians fall between the original ones.
+cube or a round fruit rests the same on any side, a picture frame upside down is the same frame.
+
+How "the same" is measured: the Gaussians are split at random into two halves. The *noise floor*
+is the nearest-neighbour distance (same part label) from the first half to the second, both put
+upright by the truth: what two samplings of one surface differ by, edges and thin bars included.
+The *test* is the same distance with the first half put upright by the estimate, minimised over
+the turn about the vertical (10° steps, then 1°, then 0.1°). The estimate counts as a symmetric
+equivalent when the test's mean and 95th percentile are both ≤ MATCH_RATIO × the floor's.
+Why a floor and not a fixed number of Gaussian spacings: the spacing-based threshold (1.5 mean,
+2.4 at the 95th percentile) was set on smooth shapes and read exact symmetries of thin-barred
+shapes as mismatches (a picture frame upside down: 1.2–1.4 / 2.2–3.0 spacings, overlapping a
+duck tilted 11°), because edges lengthen the nearest-neighbour tail; the floor has the same edges.
 """
 from __future__ import annotations
 
@@ -16,10 +22,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-MATCH_SPACINGS = 1.5  # mean Chamfer ≤ this × the Gaussian spacing …
-MATCH_P95_SPACINGS = 2.4  # … and its 95th percentile ≤ this: the same shape (exact symmetries of a sphere,
-# a cube, the generated balls measure ≤ 1.2 and ≤ 2.25; a filled duck tilted 11° 1.3–1.5 and 2.5–3.0)
-POINTS = 2000
+MATCH_RATIO = 1.2  # test / floor, mean and 95th percentile: exact symmetries measure ≤ 1.2 (a sphere and two
+# generated balls ≤ 1.06; picture frames upside down 1.01–1.20 / 0.99–1.16). A filled object hides
+# part of a tilt (its interior matches whatever the tilt): generated ducks tilted 8° measure 1.09–1.25 / 1.03–1.22,
+# tilted 13° 1.18–1.46 / 1.13–1.73, so a duck tilted by up to ~13° may pass (the spacing rule rejected 11° by its
+# percentile: 2.5–3.0 > 2.4); a stone tilted 11° 2.1 / 2.8; a cardboard box upside down (its tape on top) 2.1 / 2.2
+POINTS = 2000  # first-half Gaussians matched (against all of the second half)
 
 
 def _upright(points: np.ndarray, up: np.ndarray) -> np.ndarray:
@@ -35,22 +43,27 @@ def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1.0, 1.0))))
 
 
-def chamfer_over_spacing(points: np.ndarray, labels: np.ndarray, est_up: np.ndarray, true_up: np.ndarray,
-                         seed: int = 0) -> tuple[float, float]:
-    """(smallest symmetric mean Chamfer distance over turns about the vertical, 95th percentile of
-    the nearest-neighbour distances at that turn) between the object put upright by `est_up` and
-    by `true_up`, both divided by the Gaussian spacing. points (N,3), labels (N,) part ids. A
-    sample of POINTS Gaussians of each is matched against all of the other, so the spacing is the
-    full cloud's. The percentile catches filled objects, whose interior matches whatever the tilt."""
-    rng = np.random.default_rng(seed)
+def distance_over_floor(points: np.ndarray, labels: np.ndarray, est_up: np.ndarray, true_up: np.ndarray,
+                        seed: int = 0) -> tuple[float, float]:
+    """(mean, 95th percentile) of the symmetric nearest-neighbour distance between the object put
+    upright by `est_up` and by `true_up` at the best turn about the vertical, each over the same
+    figure of the split-half noise floor (module docstring). points (N,3), labels (N,) part ids."""
+    rng = np.random.default_rng([seed, 0x5117])  # not default_rng(seed): a cloud sampled with that stream
+    # would be split along its own sampling order (the halves far apart)
     p = np.asarray(points, np.float64)
     lab = np.asarray(labels, np.float64)
-    pick = rng.choice(len(p), POINTS, replace=False) if len(p) > POINTS else np.arange(len(p))
+    first = rng.random(len(p)) < 0.5
     a, b = _upright(p, est_up), _upright(p, true_up)
     far = 100.0 * float(np.ptp(b, axis=0).max() + 1.0)  # label as a 4th coordinate: never matched across parts
-    tree_a = cKDTree(np.column_stack([a, lab * far]))
-    tree_b = cKDTree(np.column_stack([b, lab * far]))
-    spacing = float(np.median(tree_b.query(np.column_stack([b[pick], lab[pick] * far]), k=2)[0][:, 1]))
+
+    def rows(x: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        return np.column_stack([x[idx], lab[idx] * far])
+
+    second = np.nonzero(~first)[0]
+    pick = np.nonzero(first)[0]
+    pick = pick[rng.choice(len(pick), POINTS, replace=False)] if len(pick) > POINTS else pick
+    tree_a, tree_b = cKDTree(rows(a, second)), cKDTree(rows(b, second))
+    floor = np.concatenate([tree_b.query(rows(b, pick))[0], tree_a.query(rows(a, pick))[0]])
     a_s, b_s, l_s = a[pick], b[pick], lab[pick] * far
 
     def dists(theta: float, both: bool = True) -> np.ndarray:
@@ -59,11 +72,14 @@ def chamfer_over_spacing(points: np.ndarray, labels: np.ndarray, est_up: np.ndar
         d1 = tree_b.query(np.column_stack([a_s @ rz.T, l_s]))[0]
         return np.concatenate([d1, tree_a.query(np.column_stack([b_s @ rz, l_s]))[0]]) if both else d1
 
-    coarse = np.radians(np.arange(0.0, 360.0, 10.0))
-    best = coarse[int(np.argmin([dists(t, both=False).mean() for t in coarse]))]
-    d = min((dists(t) for t in best + np.radians(np.arange(-6.0, 6.01, 1.0))), key=lambda v: float(v.mean()))
-    scale = max(spacing, 1e-12)
-    return float(d.mean()) / scale, float(np.percentile(d, 95)) / scale
+    turns = np.radians(np.arange(0.0, 360.0, 10.0))
+    best = turns[int(np.argmin([dists(t, both=False).mean() for t in turns]))]
+    for step, reach in ((1.0, 6.0), (0.1, 1.0)):  # 0.1°: a 0.5° turn moves the ends of a 0.7 m frame 3 mm
+        turns = best + np.radians(np.arange(-reach, reach + 1e-9, step))
+        best = turns[int(np.argmin([dists(t, both=False).mean() for t in turns]))]
+    d = dists(best)
+    return (float(d.mean()) / max(float(floor.mean()), 1e-30),
+            float(np.percentile(d, 95)) / max(float(np.percentile(floor, 95)), 1e-30))
 
 
 def symmetric_error(points: np.ndarray, labels: np.ndarray, est_up: np.ndarray, true_up: np.ndarray
@@ -72,6 +88,6 @@ def symmetric_error(points: np.ndarray, labels: np.ndarray, est_up: np.ndarray, 
     raw = angle_deg(est_up, true_up)
     if raw <= 1.0:
         return raw, False
-    mean, p95 = chamfer_over_spacing(points, labels, est_up, true_up)
-    same = mean <= MATCH_SPACINGS and p95 <= MATCH_P95_SPACINGS
+    mean, p95 = distance_over_floor(points, labels, est_up, true_up)
+    same = mean <= MATCH_RATIO and p95 <= MATCH_RATIO
     return (0.0, True) if same else (raw, False)

@@ -12,7 +12,9 @@ mesh, a generated object) gets its up from:
 2. **descriptors** of the object seen with that candidate up, all rotation-invariant: support
    share and stability of the base, hull area of the base and of the top, centre-of-mass height,
    the width profile along the height, height over diameter, alignment with the principal axes,
-   lateral symmetry, mass share near the bottom and the top (`FEATURES`);
+   lateral symmetry, mass share near the bottom and the top, the mass profile along the height
+   (sixths), how many vertical columns reach the base and the top (`column_ends`), and the
+   support, base area and floor columns relative to the object's best candidate (`FEATURES`);
 3. a **scorer**: a one-hidden-layer perceptron (numpy) over the standardised descriptors; the
    candidates of one object compete through a softmax. The weights live in
    pixie_gs/data/upright_scorer.json, trained by scripts/train_upright.py on the dataset's TRAIN
@@ -43,7 +45,13 @@ AGREE_DEG = 20.0  # candidates this close to the winner count towards its confid
 FEATURES = ("support", "stable", "below", "log_footprint", "com_height", "height_over_diameter",
             "width_q1", "width_q2", "width_q3", "width_q4", "base_hull_share", "top_hull_share", "top_support",
             "align_thin", "align_mid", "align_long", "lateral_isotropy", "com_offset", "bottom_mass",
-            "top_mass", "base_lateral_share", "top_lateral_share")
+            "top_mass", "base_lateral_share", "top_lateral_share",
+            "profile_1", "profile_2", "profile_3", "profile_4", "profile_5", "profile_6",
+            "floor_columns", "top_columns", "column_bottom", "column_top",
+            "support_rel", "base_hull_rel", "floor_columns_rel")
+PROFILE_BINS = 6  # mass share per sixth of the height (profile_1 = lowest)
+COLUMNS = 8  # lateral grid cells per robust diameter for the column features
+RELATIVE = (("support_rel", "support"), ("base_hull_rel", "base_hull_share"), ("floor_columns_rel", "floor_columns"))
 
 
 @dataclass
@@ -152,14 +160,54 @@ def describe(points: np.ndarray, weights: np.ndarray, normals: np.ndarray, flatn
     low, high = t < 0.1, t > 0.9
     base_lat = float(np.percentile(radial[low], 90)) / r_all if low.sum() >= 5 else 0.0
     top_lat = float(np.percentile(radial[high], 90)) / r_all if high.sum() >= 5 else 0.0
+    profile = np.bincount(np.minimum((t * PROFILE_BINS).astype(int), PROFILE_BINS - 1), weights=weights,
+                          minlength=PROFILE_BINS) / wsum
     f = np.array([
         s.support, float(s.stable), float(weights[h < base - tol].sum() / wsum),
         float(np.log(np.clip(s.footprint_ratio, 1e-3, 10.0))),
         float(np.average(t, weights=weights)), height / max(diameter, 1e-12),
         *widths, _hull_share(*hull, u), _hull_share(*hull, -u), top.support,
         *np.abs(axes.T @ u), isotropy, float(np.linalg.norm(foot_centre)) / r_all,
-        float(weights[low].sum() / wsum), float(weights[high].sum() / wsum), base_lat, top_lat])
+        float(weights[low].sum() / wsum), float(weights[high].sum() / wsum), base_lat, top_lat,
+        *profile, *column_ends(lateral, u, t, diameter), *np.zeros(len(RELATIVE))])
     return Candidate(u, f)
+
+
+def column_ends(lateral: np.ndarray, u: np.ndarray, t: np.ndarray, diameter: float) -> tuple[float, ...]:
+    """(share of occupied vertical columns reaching the base, share reaching the top, mean lowest
+    and mean highest height fraction over the columns) for lateral offsets (M,3) ⟂ u and height
+    fractions t (M,) in [0, 1]. Columns are a lateral grid of diameter / COLUMNS cells. Why: a
+    thing standing on its base touches the floor with many columns and its top is ragged (a row
+    of books, a plant); turned over, the flat end is on top."""
+    a = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(u, a)
+    cell = max(diameter, 1e-12) / COLUMNS
+    ij = np.floor(np.stack([lateral @ a, lateral @ b], axis=1) / cell).astype(np.int64)
+    _, col = np.unique(ij[:, 0] * 1_000_003 + ij[:, 1], return_inverse=True)
+    col = col.reshape(-1)
+    count = np.bincount(col)
+    lo, hi = np.ones(len(count)), np.zeros(len(count))
+    np.minimum.at(lo, col, t)
+    np.maximum.at(hi, col, t)
+    used = count >= 3
+    if not used.any():
+        return 0.0, 0.0, 0.0, 1.0
+    lo, hi = lo[used], hi[used]
+    return float(np.mean(lo < 0.05)), float(np.mean(hi > 0.95)), float(lo.mean()), float(hi.mean())
+
+
+def add_relative(cands: "list[Candidate]") -> None:
+    """Fill the RELATIVE features: each candidate's value over the largest among the object's
+    candidates (is this the object's biggest flat base?), in place."""
+    if not cands:
+        return
+    F = np.stack([c.features for c in cands])
+    for rel, base in RELATIVE:
+        i, j = FEATURES.index(rel), FEATURES.index(base)
+        top = float(F[:, j].max())
+        for c in cands:
+            c.features[i] = c.features[j] / top if top > 1e-12 else 0.0
 
 
 def candidates(points: np.ndarray, alphas: np.ndarray, rotations: np.ndarray, log_scales: np.ndarray,
@@ -188,6 +236,7 @@ def candidates(points: np.ndarray, alphas: np.ndarray, rotations: np.ndarray, lo
                         diameter, refine)
         if all(float(cand.up @ o.up) < cos_same for o in out):
             out.append(cand)
+    add_relative(out)
     return out
 
 
