@@ -82,14 +82,27 @@ def _quiet_worker() -> None:
     set_quiet(True)
 
 
+def _started() -> None:
+    """A no-op task: submitting one per worker makes the pool spawn all its processes at once."""
+
+
 def make_pool(kind: str, workers: int) -> cf.Executor:
-    """`workers` threads, or processes started with 'spawn' (never fork a process that holds torch's threads)."""
+    """`workers` threads, or processes started with 'spawn' (never fork a process that holds torch's threads).
+
+    The processes are all spawned here, with one thread per numpy/OpenMP pool (`worker_threads`):
+    each works on one asset at a time, and pools sized to every core would spin against each other."""
     if kind == "thread":
         return cf.ThreadPoolExecutor(max_workers=workers, thread_name_prefix="pixie-batch")
     import multiprocessing
 
-    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                  initializer=_quiet_worker)
+    from .worker_env import worker_threads
+
+    with worker_threads(1):  # the environment only while the children are spawned: this process is unchanged
+        ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                    initializer=_quiet_worker)
+        for _ in range(workers):  # each submit that finds no idle worker spawns one, synchronously
+            ex.submit(_started)
+    return ex
 
 
 def run_local(jobs: list[Job], opts: AnnotateOptions, workers: int = 2, pool: str = "process",
