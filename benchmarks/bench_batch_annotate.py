@@ -185,7 +185,8 @@ def main() -> None:
             lib.mkdir()
             generate(lib, args.count, args.gaussians, args.gen_jobs)
         rates: dict[str, float] = {}
-        first_out = None
+        kept: dict[str, Path] = {}  # per batch run: its outputs of the files the per-file loop redoes
+        loop_names = [f.name for f in sorted(lib.glob("asset_*.ply"))[: args.loop_files]]
         for pool in args.pools.split(","):
             for threads in args.model_threads.split(","):
                 label = f"batch --pool {pool} --model-threads {threads}"
@@ -215,12 +216,15 @@ def main() -> None:
                     print(f"  threads (most seen, sampled each second): batch process {th.get('driver', 0)}, "
                           f"{th.get('workers', 0)} pool processes with up to {th.get('worker_threads', 0)} each",
                           flush=True)
-                if first_out is None:
-                    first_out = out  # kept for the byte comparison with the per-file loop
-                else:
-                    shutil.rmtree(out, ignore_errors=True)  # 1,000 outputs of 100k Gaussians are ~9 GB
-        files = [f for f in sorted(lib.glob("asset_*.ply"))[: args.loop_files]
-                 if first_out is not None and (first_out / f.name).exists()]
+                keep = work / f"kept_{pool}_{threads}"  # for the byte comparison with the per-file loop
+                shutil.rmtree(keep, ignore_errors=True)
+                keep.mkdir()
+                for name in loop_names:
+                    if (out / name).exists():
+                        shutil.move(out / name, keep / name)
+                kept[label] = keep
+                shutil.rmtree(out, ignore_errors=True)  # 1,000 outputs of 100k Gaussians are ~9 GB
+        files = [lib / n for n in loop_names if any((k / n).exists() for k in kept.values())]
         loop_rate = None
         if files:
             loop_out = work / "out_loop"
@@ -228,9 +232,11 @@ def main() -> None:
             loop_out.mkdir()
             loop_wall = run_loop(files, loop_out, args.device)
             loop_rate = len(files) / loop_wall
-            same = all((loop_out / f.name).read_bytes() == (first_out / f.name).read_bytes() for f in files)
-            print(f"per-file CLI loop: {len(files)} files in {loop_wall:.1f} s: {loop_rate:.2f} assets/s; "
-                  f"outputs byte-identical to the batch's: {same}", flush=True)
+            print(f"per-file CLI loop: {len(files)} files in {loop_wall:.1f} s: {loop_rate:.2f} assets/s", flush=True)
+            for label, keep in kept.items():
+                both = [f.name for f in files if (keep / f.name).exists()]
+                same = sum((loop_out / n).read_bytes() == (keep / n).read_bytes() for n in both)
+                print(f"  {label}: {same} of {len(both)} outputs byte-identical to the per-file loop's", flush=True)
             again = work / "out_loop_again"
             shutil.rmtree(again, ignore_errors=True)
             again.mkdir()
