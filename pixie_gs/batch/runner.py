@@ -1,5 +1,7 @@
 """The local batch: the model is loaded once in this process and runs the assets one after another
-while a pool (threads or processes) reads + prepares the next ones and writes the finished ones.
+while a pool (threads or processes) reads + prepares the next ones and turns the finished ones'
+voxel grids into materials and writes them: this process only runs the model (field + U-Net), the
+part that cannot be spread over cores.
 
 Each step catches its own failure, so a bad file becomes a `failed` summary line with its one-line
 error and the other assets still run. `annotate_job` (all three steps in one call) is what a Ray
