@@ -21,6 +21,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -67,6 +68,45 @@ def pixie(*args: str) -> list[str]:
     return [sys.executable, "-m", "pixie_gs", *args]
 
 
+def threads_of(pid: int) -> int:
+    """Threads of process `pid` now (0 when it is gone or /proc is missing)."""
+    try:
+        return len(os.listdir(f"/proc/{pid}/task"))
+    except OSError:
+        return 0
+
+
+def children_of(pid: int) -> list[int]:
+    """Process ids whose parent is `pid` (read from /proc; empty where there is no /proc)."""
+    kids = []
+    for entry in os.listdir("/proc") if os.path.isdir("/proc") else []:
+        if entry.isdigit():
+            try:
+                stat = Path(f"/proc/{entry}/stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                kids.append(int(entry))
+    return kids
+
+
+def sample_threads(pid: int, stop, seen: dict) -> None:
+    """Until `stop` is set, once a second: the most threads of the batch process and of any one of its
+    pool processes, and how many pool processes there were (the thread caps of issue 16, checked)."""
+    while not stop.wait(1.0):
+        seen["driver"] = max(seen.get("driver", 0), threads_of(pid))
+        kids = [k for k in children_of(pid) if "spawn_main" in _cmdline(k)]
+        seen["workers"] = max(seen.get("workers", 0), len(kids))
+        seen["worker_threads"] = max([seen.get("worker_threads", 0)] + [threads_of(k) for k in kids])
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
 def run_batch(inp: Path, out: Path, device: str, extra: list[str], timeout: float) -> tuple[float, int, dict]:
     """(wall seconds, assets done, mean step seconds) of one fresh `pixie annotate DIR OUT` process;
     past `timeout` it is stopped and the assets finished so far count."""
@@ -76,12 +116,18 @@ def run_batch(inp: Path, out: Path, device: str, extra: list[str], timeout: floa
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    stop, seen = threading.Event(), {}
+    sampler = threading.Thread(target=sample_threads, args=(proc.pid, stop, seen), daemon=True)
+    sampler.start()
     try:
         stdout, stderr = proc.communicate(timeout=max(1.0, timeout))
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)  # the command and its pool workers
         stdout, stderr = proc.communicate()
         print(f"  stopped at the time budget ({timeout:.0f} s)", flush=True)
+    finally:
+        stop.set()
+        sampler.join()
     wall = time.perf_counter() - t
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
@@ -93,6 +139,7 @@ def run_batch(inp: Path, out: Path, device: str, extra: list[str], timeout: floa
     ok = [r for r in recs if r["status"] == "ok"]
     steps = {k: sum(r["step_seconds"][k] for r in ok) / max(1, len(ok)) for k in ("read_prepare", "model", "write")}
     steps["cpu_total"] = cpu
+    steps["threads"] = seen
     return wall, len(ok), steps
 
 
@@ -138,7 +185,8 @@ def main() -> None:
             lib.mkdir()
             generate(lib, args.count, args.gaussians, args.gen_jobs)
         rates: dict[str, float] = {}
-        first_out = None
+        kept: dict[str, Path] = {}  # per batch run: its outputs of the files the per-file loop redoes
+        loop_names = [f.name for f in sorted(lib.glob("asset_*.ply"))[: args.loop_files]]
         for pool in args.pools.split(","):
             for threads in args.model_threads.split(","):
                 label = f"batch --pool {pool} --model-threads {threads}"
@@ -163,12 +211,20 @@ def main() -> None:
                 print(f"  CPU time {steps['cpu_total']:.1f} s = {per:.2f} CPU-s per asset (startup included); "
                       f"on {cores} idle cores that bounds the rate at {cores / per:.2f} assets/s "
                       f"(load average now {os.getloadavg()[0]:.1f})", flush=True)
-                if first_out is None:
-                    first_out = out  # kept for the byte comparison with the per-file loop
-                else:
-                    shutil.rmtree(out, ignore_errors=True)  # 1,000 outputs of 100k Gaussians are ~9 GB
-        files = [f for f in sorted(lib.glob("asset_*.ply"))[: args.loop_files]
-                 if first_out is not None and (first_out / f.name).exists()]
+                th = steps["threads"]
+                if th:
+                    print(f"  threads (most seen, sampled each second): batch process {th.get('driver', 0)}, "
+                          f"{th.get('workers', 0)} pool processes with up to {th.get('worker_threads', 0)} each",
+                          flush=True)
+                keep = work / f"kept_{pool}_{threads}"  # for the byte comparison with the per-file loop
+                shutil.rmtree(keep, ignore_errors=True)
+                keep.mkdir()
+                for name in loop_names:
+                    if (out / name).exists():
+                        shutil.move(out / name, keep / name)
+                kept[label] = keep
+                shutil.rmtree(out, ignore_errors=True)  # 1,000 outputs of 100k Gaussians are ~9 GB
+        files = [lib / n for n in loop_names if any((k / n).exists() for k in kept.values())]
         loop_rate = None
         if files:
             loop_out = work / "out_loop"
@@ -176,9 +232,11 @@ def main() -> None:
             loop_out.mkdir()
             loop_wall = run_loop(files, loop_out, args.device)
             loop_rate = len(files) / loop_wall
-            same = all((loop_out / f.name).read_bytes() == (first_out / f.name).read_bytes() for f in files)
-            print(f"per-file CLI loop: {len(files)} files in {loop_wall:.1f} s: {loop_rate:.2f} assets/s; "
-                  f"outputs byte-identical to the batch's: {same}", flush=True)
+            print(f"per-file CLI loop: {len(files)} files in {loop_wall:.1f} s: {loop_rate:.2f} assets/s", flush=True)
+            for label, keep in kept.items():
+                both = [f.name for f in files if (keep / f.name).exists()]
+                same = sum((loop_out / n).read_bytes() == (keep / n).read_bytes() for n in both)
+                print(f"  {label}: {same} of {len(both)} outputs byte-identical to the per-file loop's", flush=True)
             again = work / "out_loop_again"
             shutil.rmtree(again, ignore_errors=True)
             again.mkdir()

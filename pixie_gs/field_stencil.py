@@ -22,9 +22,7 @@ the other (a difference of at most α·exp(-½·cutoff²) ≈ 0.011·α at that 
 """
 from __future__ import annotations
 
-import contextlib
 import math
-from collections.abc import Iterator
 from functools import lru_cache
 
 import numpy as np
@@ -249,25 +247,23 @@ def _torch_sums(means, covariances, alphas, features, n, filter_voxels, cutoff_s
     keys, counts = torch.unique_consecutive(key[order], return_counts=True)
     cut2 = cutoff_sigma ** 2
     start = 0
-    with _deterministic_sums(torch, dev):
-        for k, cnt in zip(keys.tolist(), counts.tolist()):  # one host sync for the group table
-            start = _add_group(acc, k, cnt, start, order, coef, base_flat, weighted, np_, chunk, cut2, dev, torch)
+    for k, cnt in zip(keys.tolist(), counts.tolist()):  # one host sync for the group table
+        start = _add_group(acc, k, cnt, start, order, coef, base_flat, weighted, np_, chunk, cut2, dev, torch)
     return acc
 
 
-@contextlib.contextmanager
-def _deterministic_sums(torch, dev) -> Iterator[None]:
-    """On CUDA, `index_add_` sums with float atomics in whatever order the threads arrive, so the same
-    splat gave different last bits run to run; torch's deterministic mode sums in a fixed order instead
-    (same numbers within float rounding, the same bytes every run). CPU sums are already ordered."""
-    if dev.type != "cuda" or torch.are_deterministic_algorithms_enabled():
-        yield
-        return
-    torch.use_deterministic_algorithms(True)
-    try:
-        yield
-    finally:
-        torch.use_deterministic_algorithms(False)
+def add_rows_in_order(acc, index, values) -> None:
+    """acc[index[i]] += values[i] for every row i, summed in an order that does not vary between runs.
+
+    On CUDA, `index_add_` adds with float atomics in whatever order the threads arrive, so the same
+    splat gave other last bits on each run; `index_put_(accumulate=True)` sorts the indices and sums
+    each target's rows in a fixed order (it is what `index_add_` itself runs in torch's deterministic
+    mode, without switching that process-wide mode, which other threads of a batch would see).
+    CPU sums are already ordered."""
+    if acc.device.type == "cuda":
+        acc.index_put_((index,), values, accumulate=True)
+    else:
+        acc.index_add_(0, index, values)
 
 
 def _add_group(acc, k, cnt, start, order, coef, base_flat, weighted, np_, chunk, cut2, dev, torch) -> int:
@@ -283,5 +279,5 @@ def _add_group(acc, k, cnt, start, order, coef, base_flat, weighted, np_, chunk,
         gi, ki = torch.nonzero(maha <= cut2, as_tuple=True)
         gg = g[gi]
         w = torch.exp(-0.5 * maha[gi, ki])
-        acc.index_add_(0, base_flat[gg] + off_flat[ki], w[:, None] * weighted[gg])
+        add_rows_in_order(acc, base_flat[gg] + off_flat[ki], w[:, None] * weighted[gg])
     return start + cnt

@@ -203,11 +203,30 @@ def test_cuda_feature_grid_equals_cpu():
 
 @pytest.mark.skipif(not CUDA, reason="needs a CUDA GPU")
 def test_cuda_field_gives_the_same_bytes_every_run():
-    """The CUDA sums run in torch's deterministic mode, so annotating a splat twice on a GPU writes the
-    same file (float atomics gave other last bits each run); the mode is switched back afterwards."""
+    """The CUDA sums add in a sorted order (`add_rows_in_order`), so annotating a splat twice on a GPU
+    writes the same file (float atomics gave other last bits each run); torch's process-wide
+    deterministic mode is left off (other model threads of a batch would run in it)."""
     cloud = _generated(200000)
     first = feature_grid(cloud, 64, [], device="cuda", up="y")
     for _ in range(2):
         again = feature_grid(cloud, 64, [], device="cuda", up="y")
         assert again.values.tobytes() == first.values.tobytes()
+    assert not torch.are_deterministic_algorithms_enabled()
+
+
+def test_ordered_row_sums_equal_index_add_with_repeated_targets():
+    """`add_rows_in_order` (index_put_ with accumulate on CUDA, index_add_ elsewhere) adds whole rows,
+    repeated targets included; the CUDA call's semantics checked on CPU tensors against index_add_."""
+    from pixie_gs.field_stencil import add_rows_in_order
+
+    g = torch.Generator().manual_seed(0)
+    index = torch.randint(0, 50, (4000,), generator=g)  # ~80 rows per target
+    values = torch.rand(4000, 5, generator=g)
+    want = torch.zeros(50, 5).index_add_(0, index, values)
+    got = torch.zeros(50, 5)
+    add_rows_in_order(got, index, values)
+    assert torch.equal(got, want)
+    put = torch.zeros(50, 5)
+    put.index_put_((index,), values, accumulate=True)  # the CUDA branch's call
+    assert torch.allclose(put, want, rtol=1e-5, atol=1e-5)
     assert not torch.are_deterministic_algorithms_enabled()

@@ -1,5 +1,7 @@
 """The local batch: the model is loaded once in this process and runs the assets one after another
-while a pool (threads or processes) reads + prepares the next ones and writes the finished ones.
+while a pool (threads or processes) reads + prepares the next ones and turns the finished ones'
+voxel grids into materials and writes them: this process only runs the model (field + U-Net), the
+part that cannot be spread over cores.
 
 Each step catches its own failure, so a bad file becomes a `failed` summary line with its one-line
 error and the other assets still run. `annotate_job` (all three steps in one call) is what a Ray
@@ -8,11 +10,13 @@ actor runs per asset.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import threading
 import time
+from contextlib import contextmanager
 from typing import Iterator
 
 from .jobs import Job
-from .steps import AnnotateOptions, PreparedAsset, predict, read_prepared, write_result
+from .steps import AnnotateOptions, PreparedAsset, assemble, predict_grids, read_prepared, write_result
 from .summary import asset_record, error_line
 
 POOL_KINDS = ("process", "thread")
@@ -37,24 +41,29 @@ def load_step(job: Job, opts: AnnotateOptions) -> tuple[PreparedAsset | Failed, 
         return Failed(exc, job.input), time.perf_counter() - t
 
 
-def write_step(job: Job, out, prepared, seconds: dict[str, float]) -> dict:
-    """Write one annotated cloud (+ sidecar) in a pool worker; returns its summary record."""
+def write_step(job: Job, asset: PreparedAsset, parts: list, seconds: dict[str, float]) -> dict:
+    """Turn the model's grids into the annotated cloud (nearest-voxel transfer, the output's
+    properties) and write it (+ sidecar), in a pool worker; returns the asset's summary record."""
     t = time.perf_counter()
     try:
-        write_result(out, prepared, job.output)
+        out = assemble(asset, parts)
+    except Exception as exc:  # noqa: BLE001 - e.g. a NaN prediction: this asset fails, the batch goes on
+        seconds["write"] = time.perf_counter() - t
+        return _failed_record(job, Failed(exc, job.input), seconds)
+    try:
+        write_result(out, asset.prepared, job.output)
     except Exception as exc:  # noqa: BLE001
         seconds["write"] = time.perf_counter() - t
-        failed = Failed(exc, job.output)
-        return asset_record(job, "failed", seconds, error=failed.message) | {"exit_code": failed.exit_code}
+        return _failed_record(job, Failed(exc, job.output), seconds)
     seconds["write"] = time.perf_counter() - t
     return asset_record(job, "ok", seconds, out)
 
 
 def model_step(asset: PreparedAsset, opts: AnnotateOptions, job: Job):
-    """Predict one prepared asset with the model of this process: (annotated cloud or Failed, seconds)."""
+    """Run the model of this process on one prepared asset: (its PartPredictions or Failed, seconds)."""
     t = time.perf_counter()
     try:
-        return predict(asset, opts), time.perf_counter() - t
+        return predict_grids(asset, opts), time.perf_counter() - t
     except Exception as exc:  # noqa: BLE001
         return Failed(exc, job.input), time.perf_counter() - t
 
@@ -64,11 +73,11 @@ def annotate_job(job: Job, opts: AnnotateOptions) -> dict:
     asset, t_load = load_step(job, opts)
     if isinstance(asset, Failed):
         return _failed_record(job, asset, {"read_prepare": t_load})
-    out, t_model = model_step(asset, opts, job)
+    parts, t_model = model_step(asset, opts, job)
     seconds = {"read_prepare": t_load, "model": t_model}
-    if isinstance(out, Failed):
-        return _failed_record(job, out, seconds)
-    return write_step(job, out, asset.prepared, seconds)
+    if isinstance(parts, Failed):
+        return _failed_record(job, parts, seconds)
+    return write_step(job, asset, parts, seconds)
 
 
 def _failed_record(job: Job, failed: Failed, seconds: dict[str, float]) -> dict:
@@ -82,14 +91,27 @@ def _quiet_worker() -> None:
     set_quiet(True)
 
 
+def _started() -> None:
+    """A no-op task: submitting one per worker makes the pool spawn all its processes at once."""
+
+
 def make_pool(kind: str, workers: int) -> cf.Executor:
-    """`workers` threads, or processes started with 'spawn' (never fork a process that holds torch's threads)."""
+    """`workers` threads, or processes started with 'spawn' (never fork a process that holds torch's threads).
+
+    The processes are all spawned here, with one thread per numpy/OpenMP pool (`worker_threads`):
+    each works on one asset at a time, and pools sized to every core would spin against each other."""
     if kind == "thread":
         return cf.ThreadPoolExecutor(max_workers=workers, thread_name_prefix="pixie-batch")
     import multiprocessing
 
-    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                  initializer=_quiet_worker)
+    from .worker_env import worker_threads
+
+    with worker_threads(1):  # the environment only while the children are spawned: this process is unchanged
+        ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                    initializer=_quiet_worker)
+        for _ in range(workers):  # each submit that finds no idle worker spawns one, synchronously
+            ex.submit(_started)
+    return ex
 
 
 def run_local(jobs: list[Job], opts: AnnotateOptions, workers: int = 2, pool: str = "process",
@@ -109,9 +131,12 @@ def run_local(jobs: list[Job], opts: AnnotateOptions, workers: int = 2, pool: st
     ex = make_pool(pool, workers)  # spawned processes start while the model loads
     model_ex = cf.ThreadPoolExecutor(max_workers=model_threads, thread_name_prefix="pixie-model")
     try:
-        get_model(opts.checkpoint, resolve_torch_device(opts.device))
+        device = resolve_torch_device(opts.device)
+        get_model(opts.checkpoint, device)
+        if device.startswith("cuda"):
+            torch.cuda.synchronize(device)  # the weights are in place before other streams read them
         yield from _pipeline(ex, model_ex, jobs, opts, ahead=workers + model_threads,
-                             torch_threads=torch.get_num_threads())
+                             torch_threads=torch.get_num_threads(), device=device)
     finally:
         model_ex.shutdown(wait=True, cancel_futures=True)
         ex.shutdown(wait=True, cancel_futures=True)
@@ -127,14 +152,39 @@ def use_torch_threads(count: int) -> None:
         torch.set_num_threads(count)
 
 
-def _model_task(asset: PreparedAsset, opts: AnnotateOptions, job: Job, t_load: float, torch_threads: int):
+_THREAD = threading.local()
+
+
+@contextmanager
+def own_cuda_stream(device: str) -> Iterator[None]:
+    """On CUDA, run the body on this thread's own CUDA stream (made once per thread); elsewhere nothing.
+
+    The GPU field waits for the GPU several times per asset (`nonzero`, copies to the host). On the
+    one default stream each wait also waits for the work the other model threads queued; on a
+    stream per thread it waits for its own asset only, so one thread's host work (Python, launches,
+    copies) overlaps another's kernels."""
+    if not device.startswith("cuda"):
+        yield
+        return
+    import torch
+
+    stream = getattr(_THREAD, "stream", None)
+    if stream is None:
+        stream = _THREAD.stream = torch.cuda.Stream(device=device)
+    with torch.cuda.stream(stream):
+        yield
+
+
+def _model_task(asset: PreparedAsset, opts: AnnotateOptions, job: Job, t_load: float, torch_threads: int,
+                device: str = "cpu"):
     use_torch_threads(torch_threads)
-    out, t_model = model_step(asset, opts, job)
-    return out, asset.prepared, {"read_prepare": t_load, "model": t_model}
+    with own_cuda_stream(device):  # every result comes back as numpy, so nothing outlives the stream's work
+        parts, t_model = model_step(asset, opts, job)
+    return parts, asset, {"read_prepare": t_load, "model": t_model}
 
 
 def _pipeline(ex: cf.Executor, model_ex: cf.Executor, jobs: list[Job], opts: AnnotateOptions,
-              ahead: int, torch_threads: int) -> Iterator[dict]:
+              ahead: int, torch_threads: int, device: str = "cpu") -> Iterator[dict]:
     """Read/prepare → model → write as futures: at most `ahead` assets read but not yet predicted and
     at most `ahead` results waiting to be written, so memory stays bounded for any library size."""
     todo = iter(jobs)
@@ -159,14 +209,14 @@ def _pipeline(ex: cf.Executor, model_ex: cf.Executor, jobs: list[Job], opts: Ann
                 if isinstance(asset, Failed):
                     yield _failed_record(job, asset, {"read_prepare": t_load})
                 else:
-                    predicting[model_ex.submit(_model_task, asset, opts, job, t_load, torch_threads)] = job
+                    predicting[model_ex.submit(_model_task, asset, opts, job, t_load, torch_threads, device)] = job
             elif fut in predicting:
                 job = predicting.pop(fut)
-                out, prepared, seconds = fut.result()
-                if isinstance(out, Failed):
-                    yield _failed_record(job, out, seconds)
+                parts, asset, seconds = fut.result()
+                if isinstance(parts, Failed):
+                    yield _failed_record(job, parts, seconds)
                 else:
-                    writing[ex.submit(write_step, job, out, prepared, seconds)] = job
+                    writing[ex.submit(write_step, job, asset, parts, seconds)] = job
             else:
                 writing.pop(fut)
                 yield fut.result()

@@ -47,6 +47,22 @@ class PreparedAsset:
     model_cloud: SplatCloud
     prepared: object | None
 
+    def __getstate__(self) -> dict:
+        """Pickled (sent between a batch's processes) without the model cloud's copy of the input:
+        only its `role` and `object_id`, from which `__setstate__` rebuilds it."""
+        if self.prepared is None or self.model_cloud is self.cloud:
+            return dict(self.__dict__)
+        return {"cloud": self.cloud, "prepared": self.prepared, "role": self.model_cloud.get("role"),
+                "object_id": self.model_cloud.get("object_id")}
+
+    def __setstate__(self, state: dict) -> None:
+        if "model_cloud" not in state:
+            from ..prepare.pipeline import with_roles
+
+            state = {"cloud": state["cloud"], "prepared": state["prepared"],
+                     "model_cloud": with_roles(state["cloud"], state["role"], state["object_id"])}
+        self.__dict__.update(state)
+
 
 def read_prepared(path: str | Path, opts: AnnotateOptions, announce: bool = False) -> PreparedAsset:
     """Read and validate `path`, then prepare it (floaters, up, ground, objects) unless --no-prepare.
@@ -69,12 +85,26 @@ def read_prepared(path: str | Path, opts: AnnotateOptions, announce: bool = Fals
 def predict(asset: PreparedAsset, opts: AnnotateOptions) -> SplatCloud:
     """The annotated cloud to write: with preparation, the input's properties plus the materials,
     confidence and a `pixie up` header comment; with --no-prepare, the annotated model cloud."""
-    from ..annotate import annotate_cloud
+    return assemble(asset, predict_grids(asset, opts))
+
+
+def predict_grids(asset: PreparedAsset, opts: AnnotateOptions) -> list:
+    """The model's work on one asset (field → U-Net on the device): its PartPredictions. A batch runs
+    this in the process that holds the model and `assemble` in a pool worker."""
+    from ..annotate import predict_parts
     from ..prepare import parse_up
 
     given_up = parse_up(opts.up)
-    out = annotate_cloud(asset.model_cloud, opts.checkpoint, opts.device,
+    return predict_parts(asset.model_cloud, opts.checkpoint, opts.device,
                          given_up if given_up is not None else "z", prepared=asset.prepared)
+
+
+def assemble(asset: PreparedAsset, parts: list) -> SplatCloud:
+    """The cloud `predict` returns, from the asset and its PartPredictions (host work only: the
+    nearest-voxel transfer and the output's properties)."""
+    from ..annotate import materials_from_parts
+
+    out = materials_from_parts(asset.model_cloud, parts, asset.prepared)
     if asset.prepared is not None:  # the output keeps the input's properties + materials (roles: `pixie prepare`)
         out = input_with_results(asset.cloud, out, asset.prepared.up_vector)
     return out

@@ -2,13 +2,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..field import DENSITY_CHANNELS, BASE_FEATURES, FeatureGrid, feature_grid
 from ..materials import BACKGROUND, LOG10_DENSITY_RANGE, LOG10_E_RANGE, NU_RANGE, normalize_physical
 from ..splat import SplatCloud
-from .checkpoint import LoadedModel
+
+if TYPE_CHECKING:  # checkpoint imports torch; batch pool processes import this module for GUESS_THRESHOLD only
+    from .checkpoint import LoadedModel
 
 
 @dataclass

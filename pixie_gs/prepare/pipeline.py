@@ -139,8 +139,14 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
         counts={name: int((role == code).sum()) for code, name in ROLE_NAMES.items()},
         crop=None if crop_obj is None else f"{crop_obj.kind}:{','.join(f'{v:g}' for v in crop_obj.values)}",
         spacing=float(spacing), count=n)
+    out = with_roles(cloud, role, object_id)
+    scene.seconds = round(time.perf_counter() - t0, 3)
+    return out, scene
+
+
+def with_roles(cloud: SplatCloud, role: np.ndarray, object_id: np.ndarray) -> SplatCloud:
+    """A copy of `cloud` with the per-Gaussian `role` (uint8) and `object_id` (int32) of a preparation."""
     out = cloud.copy()
     out.set("role", role, np.uint8)
     out.set("object_id", object_id, np.int32)
-    scene.seconds = round(time.perf_counter() - t0, 3)
-    return out, scene
+    return out
