@@ -417,11 +417,14 @@ def _settle_on_full_model(runner: _Runner, problem: Problem, result: RoundResult
     assert chosen is not None
     rivals = [s for s in result.ranking[1:] if s.significant and (s.effect, s.part) in by_key
               and s.delta_bic >= (1.0 - RIVAL_WITHIN) * chosen.delta_bic][:MAX_RIVALS]
-    settled = []
+    fitted = []
     for s in [chosen] + rivals:
         cand = by_key[(s.effect, s.part)]
-        scene1, cloud1 = cand.effect.apply(scene0, cloud0, cand.part, dict(s.params))
-        settled.append((cand, _polish_on_full_model(runner, problem, cand, s, scene0, cloud0, scene1, cloud1)))
+        fitted.append((cand, s, *cand.effect.apply(scene0, cloud0, cand.part, dict(s.params))))
+    if len(fitted) > 1:  # their first full-model runs as one batched simulation (cached for the polish)
+        runner.model.simulate_full_many([(scene1, cloud1) for _, _, scene1, cloud1 in fitted])
+    settled = [(cand, _polish_on_full_model(runner, problem, cand, s, scene0, cloud0, scene1, cloud1))
+               for cand, s, scene1, cloud1 in fitted]
     best_cand, best = min(settled, key=lambda item: item[1][3].sse)
     if rivals:
         stage("full-model check of close rivals: " + ", ".join(
