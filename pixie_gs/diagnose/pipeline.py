@@ -32,6 +32,7 @@ OFFSET_SEARCH_FRAMES = 3.0      # start-time offsets searched: ± this many fram
 RIVAL_WITHIN = 0.1              # reduced model: rivals within 10 % of the winner's ΔBIC are settled on the full model
 MAX_RIVALS = 2
 MAX_CORRECTIONS = 3             # full-model secant corrections of an effect fitted on the reduced model
+FIT_MODULES = ("scipy.optimize", "scipy.cluster.vq")   # lsq_linear (fit.py), kmeans2 (locate.py)
 OFFSET_MAX_LOSS_RATIO = 0.3     # an applied offset must cut the early frames' Huber loss by 70 %
 
 
@@ -255,6 +256,9 @@ class _Runner:
 def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "auto",
              options: DiagnoseOptions | None = None, cache: dict | None = None) -> Diagnosis:
     """Find, fit and add the effects the model (cloud + scene) is missing versus `tracks`."""
+    from ..prefetch import prefetch
+
+    prefetch(*FIT_MODULES)  # imported while the first simulations run
     options = options or DiagnoseOptions()
     effects = list(registry().values()) if not options.effects else [get_effect(n) for n in options.effects]
     if not effects:
