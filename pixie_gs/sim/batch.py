@@ -152,6 +152,11 @@ class BatchedSolver:
         self.bad = wp.zeros((self.k, 7), dtype=wp.int32, device=d)
         self._pending = [(r, i) for r, run in enumerate(self._runs) for i in range(len(run.scene.impulses))]
         self._stats: tuple[np.ndarray, np.ndarray] | None = None
+        self.fetch_positions = False  # GPU: bring x back with every frame's statistics (one sync)
+        self._pinned: dict[int, wp.array] = {}      # GPU: page-locked host mirrors (async copies)
+        self._uploaded: dict[int, np.ndarray] = {}  # last values sent per device array
+        self._x_host: np.ndarray | None = None       # positions fetched at the end of frame _x_frame
+        self._x_frame = -1
         self._record_launches()
         self.graph = None
         if d != "cpu" and (CUDA_GRAPH if graph is None else graph):
@@ -247,11 +252,46 @@ class BatchedSolver:
         n_velocity = math.ceil(frame_dt_s * v_bound / (s.velocity_cfl * self.dx))
         return int(min(max(1, n_elastic, n_velocity), s.max_substeps_per_frame))
 
+    # ------------------------------------------------------------------ host <-> device
+    def _host_mirror(self, a: wp.array) -> wp.array:
+        """A page-locked host array shaped like device array `a` (made once)."""
+        buf = self._pinned.get(id(a))
+        if buf is None:
+            buf = self._pinned[id(a)] = wp.empty(a.shape, dtype=a.dtype, device="cpu", pinned=True)
+        return buf
+
+    def _upload(self, a: wp.array, values: np.ndarray) -> None:
+        """a ← values, skipped when they are the ones sent last. On a GPU through a page-locked
+        mirror, so the copy is queued without waiting for the substeps in flight (every mirror is
+        written once per frame and each frame ends in a sync, so a queued copy has run before its
+        mirror is written again)."""
+        last = self._uploaded.get(id(a))
+        if last is not None and last.shape == values.shape and np.array_equal(last, values):
+            return
+        self._uploaded[id(a)] = values.copy()
+        if self.device == "cpu":
+            a.assign(values)
+            return
+        buf = self._host_mirror(a)
+        buf.numpy()[...] = values
+        wp.copy(a, buf)
+
+    def _fetch(self, arrays: list[wp.array]) -> list[np.ndarray]:
+        """Host copies of `arrays`: on a GPU queued into page-locked mirrors and waited for ONCE."""
+        if self.device == "cpu":
+            return [a.numpy().copy() for a in arrays]
+        bufs = [self._host_mirror(a) for a in arrays]
+        for buf, a in zip(bufs, arrays):
+            wp.copy(buf, a)
+        wp.synchronize_device(self.device)
+        return [buf.numpy().copy() for buf in bufs]
+
     # ------------------------------------------------------------------ stepping
     def _reduce(self, v_limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per-run (maxima (K,2): fastest particle, fastest snow wave; bad (K,7) per material)."""
-        self.v_limit.assign(v_limits.astype(np.float32))
-        self.alive_flag.assign(np.array([int(r.alive) for r in self._runs], np.int32))
+        """Per-run (maxima (K,2): fastest particle, fastest snow wave; bad (K,7) per material);
+        with `fetch_positions` on a GPU, the positions come back in the same sync."""
+        self._upload(self.v_limit, v_limits.astype(np.float32))
+        self._upload(self.alive_flag, np.array([int(r.alive) for r in self._runs], np.int32))
         self.maxima.zero_()
         self.bad.zero_()
         st = self.state
@@ -259,7 +299,11 @@ class BatchedSolver:
                   inputs=[st.x, st.v, st.F, st.Jp, self.material, self.fixed_flag, self.wave_c, self.run,
                           self.alive_flag, self.scene.materials.snow_hardening, self.v_limit, MAX_STRETCH,
                           self.maxima, self.bad])
-        return self.maxima.numpy().astype(np.float64), self.bad.numpy()
+        with_x = self.fetch_positions and self.device != "cpu"
+        out = self._fetch([self.maxima, self.bad] + ([st.x] if with_x else []))
+        if with_x:
+            self._x_host, self._x_frame = out[2], self.frame
+        return out[0].astype(np.float64), out[1]
 
     @property
     def alive(self) -> np.ndarray:
@@ -301,11 +345,11 @@ class BatchedSolver:
                     run.alive = False
                     run.over_budget = True
         dts = np.where(n_sub > 0, frame_dt_s / np.maximum(n_sub, 1), 0.0)
-        self.n_sub.assign(n_sub)
-        self.dt_run.assign(dts.astype(np.float32))
-        self.dt_run64.assign(dts)
+        self._upload(self.n_sub, n_sub)
+        self._upload(self.dt_run, dts.astype(np.float32))
+        self._upload(self.dt_run64, dts)
         t0 = self.time_s
-        self.frame_start.assign(np.array([t0], np.float64))
+        self._upload(self.frame_start, np.array([t0], np.float64))
         if self._substep_host is not None:
             self._substep_host[0] = 0
         else:
@@ -404,7 +448,7 @@ class BatchedSolver:
     # ------------------------------------------------------------------ results
     def positions(self, r: int | None = None) -> np.ndarray:
         """Positions (N_r,3) float32 world m of run r (None: every particle, run after run)."""
-        x = self.state.x.numpy()
+        x = self._x_host if self._x_frame == self.frame and self._x_host is not None else self.state.x.numpy()
         return x.copy() if r is None else x[self.offsets[r]:self.offsets[r + 1]].copy()
 
     def deformation_gradients(self, r: int) -> np.ndarray:
@@ -433,6 +477,7 @@ def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: flo
         raise InputError(f"fps must be > 0, got {fps}")
     built = [build_particles(cloud, scene, fill=fill) for cloud, scene in models]
     solver = BatchedSolver([(p, sc) for (p, _), (_, sc) in zip(built, models)], device, graph=graph)
+    solver.fetch_positions = True  # read every frame: with the frame's statistics, one sync
     t = np.arange(frames, dtype=np.float64) / fps
     ns = [len(cloud) for cloud, _ in models]
     pick = [np.arange(n) if points is None else np.asarray(points, np.int64) for n in ns]
