@@ -97,3 +97,4 @@ def test_nan_median_is_numpys():
     with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
         ref = np.nanmedian(a, axis=1)
     assert np.allclose(_nan_median(a, axis=1), ref, equal_nan=True, rtol=0, atol=1e-15)
+

@@ -22,7 +22,7 @@ from ..splat import SplatCloud
 from .locate import per_frame_rms, residuals, rms_gap, spatial_clusters
 from .measured import MeasuredTracks
 from .ambiguity import separation_hint
-from .pipeline import Diagnosis
+from .pipeline import FIT_MODULES, Diagnosis
 
 
 def bake_material_overrides(scene, cloud: SplatCloud) -> tuple[object, SplatCloud]:
@@ -224,10 +224,11 @@ PLOT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg")
 
 def prefetch_plotting() -> None:
     """Start importing what plot_gap needs in the background (prefetch.py): a caller that will
-    write the PNG after a diagnosis calls this before it, so the import overlaps the simulations."""
+    write the PNG after a diagnosis calls this before it, so the import overlaps the simulations
+    (queued after the fit's modules, which the diagnosis needs sooner)."""
     from ..prefetch import prefetch
 
-    prefetch(*PLOT_MODULES)
+    prefetch(*FIT_MODULES, *PLOT_MODULES)
 
 
 def record(path: Path, diagnosis: Diagnosis, after: np.ndarray) -> None:
