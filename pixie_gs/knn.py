@@ -25,7 +25,8 @@ def knn_brute(points: np.ndarray, queries: np.ndarray, k: int) -> tuple[np.ndarr
     step = max(1, _CHUNK_PAIRS // max(len(points), 1))
     for a in range(0, len(queries), step):
         q = queries[a:a + step]
-        d2 = np.sum((q[:, None, :] - points[None, :, :]) ** 2, axis=2)
+        diff = q[:, None, :] - points[None, :, :]
+        d2 = np.einsum("ijk,ijk->ij", diff, diff)
         part = np.argpartition(d2, k - 1, axis=1)[:, :k] if k < len(points) else \
             np.broadcast_to(np.arange(len(points)), d2.shape)
         dk = np.take_along_axis(d2, part, axis=1)
@@ -92,7 +93,8 @@ class CellGrid:
         slot = np.arange(len(pair_q)) - np.repeat(np.cumsum(total) - total, total)
         d2 = np.full((m, width), np.inf)
         idx = np.full((m, width), -1, np.int64)
-        d2[pair_q, slot] = np.sum((self.points[cand] - q[pair_q]) ** 2, axis=1)
+        diff = self.points[cand] - q[pair_q]
+        d2[pair_q, slot] = np.einsum("ij,ij->i", diff, diff)
         idx[pair_q, slot] = cand
         part = np.argpartition(d2, k - 1, axis=1)[:, :k] if k < width else np.tile(np.arange(width), (m, 1))
         dk = np.take_along_axis(d2, part, axis=1)

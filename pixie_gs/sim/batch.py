@@ -451,6 +451,11 @@ class BatchedSolver:
         x = self._x_host if self._x_frame == self.frame and self._x_host is not None else self.state.x.numpy()
         return x.copy() if r is None else x[self.offsets[r]:self.offsets[r + 1]].copy()
 
+    def positions_at(self, slots: np.ndarray) -> np.ndarray:
+        """Positions (len(slots),3) float32 world m of the given particle slots (all runs' numbering)."""
+        x = self._x_host if self._x_frame == self.frame and self._x_host is not None else self.state.x.numpy()
+        return x[slots]
+
     def deformation_gradients(self, r: int) -> np.ndarray:
         """F (N_r,3,3) float32 of run r."""
         return self.state.F.numpy()[self.offsets[r]:self.offsets[r + 1]].copy()
@@ -484,17 +489,18 @@ def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: flo
     x0_in = [cloud.means[k].astype(np.float32) for (cloud, _), k in zip(models, pick)]
     x0_world = [p.x[k].astype(np.float64) for (p, _), k in zip(built, pick)]
     xs = [np.empty((frames, len(k), 3), np.float32) for k in pick]
-    for r in range(len(models)):
-        xs[r][0] = x0_in[r]
+    slots = np.concatenate([int(solver.offsets[r]) + k for r, k in enumerate(pick)])
+    ends = np.cumsum([len(k) for k in pick])
     steps = range(1, frames) if quiet else progress(range(1, frames), desc=f"simulate ×{len(models)}",
                                                     total=frames - 1, unit="frame")
+    # per frame only a copy of the picked world positions (the GPU idles while the host works
+    # between frames); mapped to input coordinates once at the end
     for i in steps:
         solver.step_frame(1.0 / fps)
-        x_all = solver.positions()
-        for r, ((_, tf), alive) in enumerate(zip(built, solver.alive)):
+        x_pick = solver.positions_at(slots)
+        for r, alive in enumerate(solver.alive):
             if alive:
-                xw = x_all[int(solver.offsets[r]) + pick[r]]
-                xs[r][i] = x0_in[r] + tf.displacement_to_input(xw - x0_world[r]).astype(np.float32)
+                xs[r][i] = x_pick[ends[r] - len(pick[r]):ends[r]]
         if not solver.alive.any():
             break
     out: list = []
@@ -503,6 +509,12 @@ def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: flo
         if err is not None:
             out.append(err)
             continue
+        if not solver.over_budget[r]:  # alive to the end: every frame holds world positions
+            xs[r][0] = x0_in[r]
+            step = max(1, 4_000_000 // max(3 * len(pick[r]), 1))  # frames per float64 temporary (~32 MB)
+            for a in range(1, frames, step):
+                xw = xs[r][a:a + step]
+                xs[r][a:a + step] = x0_in[r] + tf.displacement_to_input(xw - x0_world[r]).astype(np.float32)
         if solver.over_budget[r]:  # stiff parts: the unbatched solver decides (rigid / softened / error)
             try:
                 alone = simulate(*models[r], frames, fps, device=device, fill=fill, quiet=True)
