@@ -57,6 +57,7 @@ class CellGrid:
         self.h, self.lo, self.dims = h, lo, dims
         key = self._key(self._cell(p))
         self.order = np.argsort(key, kind="stable")
+        self.sorted_points = p[self.order]   # cell after cell: candidates are gathered near each other
         counts = np.bincount(key, minlength=int(np.prod(dims)))
         self.start = np.concatenate([[0], np.cumsum(counts)])
 
@@ -89,17 +90,19 @@ class CellGrid:
         pair_q = np.repeat(np.arange(m), total)
         first = np.repeat(s.ravel(), flat_n)
         cell_begin = np.repeat(np.cumsum(flat_n) - flat_n, flat_n)
-        cand = self.order[first + (np.arange(int(flat_n.sum())) - cell_begin)]
-        slot = np.arange(len(pair_q)) - np.repeat(np.cumsum(total) - total, total)
-        d2 = np.full((m, width), np.inf)
-        idx = np.full((m, width), -1, np.int64)
-        diff = self.points[cand] - q[pair_q]
-        d2[pair_q, slot] = np.einsum("ij,ij->i", diff, diff)
-        idx[pair_q, slot] = cand
+        pos = first + (np.arange(int(flat_n.sum())) - cell_begin)       # into sorted_points
+        at = pair_q * width + (np.arange(len(pair_q)) - np.repeat(np.cumsum(total) - total, total))
+        d2 = np.full(m * width, np.inf)
+        where = np.full(m * width, -1, np.int64)
+        diff = self.sorted_points[pos] - np.repeat(q, total, axis=0)
+        d2[at] = np.einsum("ij,ij->i", diff, diff)
+        where[at] = pos
+        d2, where = d2.reshape(m, width), where.reshape(m, width)
         part = np.argpartition(d2, k - 1, axis=1)[:, :k] if k < width else np.tile(np.arange(width), (m, 1))
         dk = np.take_along_axis(d2, part, axis=1)
         order = np.argsort(dk, axis=1, kind="stable")
-        return np.sqrt(np.take_along_axis(dk, order, axis=1)), np.take_along_axis(np.take_along_axis(idx, part, 1), order, 1)
+        best = np.take_along_axis(np.take_along_axis(where, part, 1), order, 1)
+        return np.sqrt(np.take_along_axis(dk, order, axis=1)), np.where(best >= 0, self.order[np.maximum(best, 0)], -1)
 
     def query(self, queries: np.ndarray, k: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """(distances (m,k), indices (m,k)) of the k nearest points to each query, nearest first
