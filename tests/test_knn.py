@@ -1,12 +1,13 @@
 """numpy k-nearest neighbours (pixie_gs/knn.py) and the checks built on it (diagnose/checks.py),
 each against a plain reference: brute force over all pairs, and the per-track loop that
-outlier_tracks replaced."""
+outlier_tracks replaced (checks.outlier_distances_reference)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from pixie_gs.diagnose.checks import _nan_median, gaussian_spacing, icp, outlier_tracks
+from pixie_gs.diagnose.checks import (_nan_median, gaussian_spacing, icp, outlier_distances,
+                                     outlier_distances_reference, outlier_tracks)
 from pixie_gs.knn import CellGrid, knn, knn_brute
 
 
@@ -50,25 +51,6 @@ def test_gaussian_spacing_and_icp():
     assert np.allclose(moved @ R_fit.T + t_fit, pts, atol=1e-6)
 
 
-def _outlier_distance_loop(r, visible, rest, part, k=6):
-    """Reference: the per-track loop (scipy KD-tree and np.nanmedian) outlier_tracks replaced."""
-    from scipy.spatial import cKDTree
-
-    d = np.zeros(r.shape[1])
-    for p in np.unique(part):
-        idx = np.nonzero(part == p)[0]
-        if len(idx) < 3:
-            continue
-        _, nb = cKDTree(rest[idx]).query(rest[idx], k=min(k + 1, len(idx)))
-        for j, m in enumerate(idx):
-            others = idx[nb[j, 1:]]
-            ref = np.nanmedian(np.where(visible[:, others, None], r[:, others], np.nan), axis=1)
-            ok = visible[:, m] & np.isfinite(ref).all(axis=1)
-            if ok.sum() >= 2:
-                d[m] = float(np.sqrt(np.mean(np.sum((r[ok, m] - ref[ok]) ** 2, axis=1))))
-    return d
-
-
 def test_outlier_tracks_match_the_per_track_loop():
     rng = np.random.default_rng(5)
     T, M = 30, 150
@@ -82,7 +64,8 @@ def test_outlier_tracks_match_the_per_track_loop():
     visible[3:, 42] = False                                           # seen twice... then lost
     r = np.where(visible[:, :, None], r, np.nan)
     found, z = outlier_tracks(r, visible, rest, part, sigma=1e-3)
-    d = _outlier_distance_loop(r, visible, rest, part)
+    d = outlier_distances_reference(r, visible, rest, part)
+    assert np.array_equal(outlier_distances(r, visible, rest, part) == 0, d == 0)
     med = np.median(d)
     z_ref = (d - med) / max(np.median(np.abs(d - med)) * 1.4826, 3e-3)
     assert np.allclose(z, z_ref, rtol=1e-12, atol=1e-12)

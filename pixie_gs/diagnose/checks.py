@@ -16,6 +16,7 @@ All lengths are in the splat's units (the tracks' after `--units`), times in sec
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -179,6 +180,19 @@ def outlier_tracks(r: np.ndarray, visible: np.ndarray, rest: np.ndarray, part: n
     gives one large d. z = (d − median d) / (1.4826 MAD d), floored by the tracking noise; a
     track with z > OUTLIER_Z (Huber weight < 0.27) is an outlier.
     """
+    d = outlier_distances(r, visible, rest, part, k)
+    med = float(np.median(d))
+    mad = float(np.median(np.abs(d - med))) * 1.4826
+    scale = max(mad, 3.0 * sigma, 1e-12)
+    z = (d - med) / scale
+    return z > OUTLIER_Z, z
+
+
+def outlier_distances(r: np.ndarray, visible: np.ndarray, rest: np.ndarray, part: np.ndarray,
+                      k: int = 6) -> np.ndarray:
+    """d_m = RMS over frames of |r_m − per-frame median of its k nearest tracked neighbours on
+    the same part| (M,), 0 where a part has < 3 tracks or a track < 2 usable frames; all tracks
+    at once (outlier_distances_reference is the per-track loop it replaces)."""
     M = r.shape[1]
     d = np.zeros(M)
     for p in np.unique(part):
@@ -194,11 +208,29 @@ def outlier_tracks(r: np.ndarray, visible: np.ndarray, rest: np.ndarray, part: n
         count = ok.sum(axis=0)
         use = count >= 2
         d[idx[use]] = np.sqrt(sq.sum(axis=0)[use] / count[use])
-    med = float(np.median(d))
-    mad = float(np.median(np.abs(d - med))) * 1.4826
-    scale = max(mad, 3.0 * sigma, 1e-12)
-    z = (d - med) / scale
-    return z > OUTLIER_Z, z
+    return d
+
+
+def outlier_distances_reference(r: np.ndarray, visible: np.ndarray, rest: np.ndarray, part: np.ndarray,
+                                k: int = 6) -> np.ndarray:
+    """Plain reference of outlier_distances: one track at a time, brute-force neighbours, np.nanmedian."""
+    from ..knn import knn_brute
+
+    d = np.zeros(r.shape[1])
+    for p in np.unique(part):
+        idx = np.nonzero(part == p)[0]
+        if len(idx) < 3:
+            continue
+        _, nb = knn_brute(rest[idx], rest[idx], min(k + 1, len(idx)))
+        for j, m in enumerate(idx):
+            others = idx[nb[j, 1:]]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a frame no neighbour saw → NaN, as intended
+                ref = np.nanmedian(np.where(visible[:, others, None], r[:, others], np.nan), axis=1)
+            ok = visible[:, m] & np.isfinite(ref).all(axis=1)
+            if ok.sum() >= 2:
+                d[m] = float(np.sqrt(np.mean(np.sum((r[ok, m] - ref[ok]) ** 2, axis=1))))
+    return d
 
 
 def _nan_median(a: np.ndarray, axis: int) -> np.ndarray:
