@@ -277,14 +277,15 @@ class BatchedSolver:
         wp.copy(a, buf)
 
     def _fetch(self, arrays: list[wp.array]) -> list[np.ndarray]:
-        """Host copies of `arrays`: on a GPU queued into page-locked mirrors and waited for ONCE."""
+        """Host views of `arrays`, valid until the next _fetch: on a GPU copied into page-locked
+        mirrors and waited for ONCE (one sync for all), on the CPU the arrays themselves."""
         if self.device == "cpu":
-            return [a.numpy().copy() for a in arrays]
+            return [a.numpy() for a in arrays]
         bufs = [self._host_mirror(a) for a in arrays]
         for buf, a in zip(bufs, arrays):
             wp.copy(buf, a)
         wp.synchronize_device(self.device)
-        return [buf.numpy().copy() for buf in bufs]
+        return [buf.numpy() for buf in bufs]
 
     # ------------------------------------------------------------------ stepping
     def _reduce(self, v_limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -303,7 +304,7 @@ class BatchedSolver:
         out = self._fetch([self.maxima, self.bad] + ([st.x] if with_x else []))
         if with_x:
             self._x_host, self._x_frame = out[2], self.frame
-        return out[0].astype(np.float64), out[1]
+        return out[0].astype(np.float64), out[1].copy()
 
     @property
     def alive(self) -> np.ndarray:
