@@ -58,6 +58,8 @@ class _Run:
     moving: np.ndarray
     moving_snow: np.ndarray
     wind_peak: float
+    accel: float = 0.0  # |gravity| + peak wind acceleration, m/s² (bounds a frame's speed-up)
+    has_snow: bool = False  # moving_snow.any(), asked every frame
     c_static: float = 0.0
     alive: bool = True
     error: ComputationError | None = None
@@ -128,6 +130,8 @@ class BatchedSolver:
         self.run = wp.array(np.repeat(np.arange(self.k, dtype=np.int32), counts), dtype=wp.int32, device=d)
         for run in self._runs:
             self._set_stiffness(run)
+            run.accel = float(np.linalg.norm(run.scene.gravity)) + run.wind_peak
+            run.has_snow = bool(run.moving_snow.any())
         shape = (self.k,) + tuple(self.dims)
         self.grid_mass = wp.zeros(shape, dtype=float, device=d)
         self.grid_momentum = wp.zeros(shape, dtype=wp.vec3, device=d)
@@ -236,7 +240,7 @@ class BatchedSolver:
         return math.inf if c_mps == 0.0 else self.scene.solver.cfl * self.dx / c_mps
 
     def _wave_speed(self, run: _Run, snow_wave: float) -> float:
-        return max(run.c_static, snow_wave) if run.moving_snow.any() else run.c_static
+        return max(run.c_static, snow_wave) if run.has_snow else run.c_static
 
     def _substeps(self, r: int, frame_dt_s: float, max_speed: float, snow_wave: float) -> int:
         run = self._runs[r]
@@ -245,10 +249,9 @@ class BatchedSolver:
         n_elastic = math.ceil(frame_dt_s / dt) if math.isfinite(dt) else 1
         if n_elastic > s.max_substeps_per_frame:
             return 0  # over the budget: the caller runs it alone (MPMSolver's stiff-part handling)
-        accel = float(np.linalg.norm(run.scene.gravity)) + run.wind_peak
         kicks = sum(float(np.linalg.norm(run.scene.impulses[i].velocity_change)) for rr, i in self._pending
-                    if rr == r and run.scene.impulses[i].time_s < self.time_s + frame_dt_s)
-        v_bound = max_speed + accel * frame_dt_s + kicks
+                    if rr == r and run.scene.impulses[i].time_s < self.time_s + frame_dt_s) if self._pending else 0.0
+        v_bound = max_speed + run.accel * frame_dt_s + kicks
         n_velocity = math.ceil(frame_dt_s * v_bound / (s.velocity_cfl * self.dx))
         return int(min(max(1, n_elastic, n_velocity), s.max_substeps_per_frame))
 
@@ -431,6 +434,8 @@ class BatchedSolver:
 
     def _guard(self, bad: np.ndarray, v_limits: np.ndarray) -> None:
         """Stop every live run with particles that went non-finite or ran away (MPMSolver._guard)."""
+        if not bad.any():  # the usual frame: one test instead of one per run
+            return
         for r, run in enumerate(self._runs):
             counts_all = bad[r]
             if not run.alive or not counts_all.any():
