@@ -113,7 +113,12 @@ class CellGrid:
             raise ValueError("k must be ≥ 1")
         dist = np.full((len(q), k), np.inf)
         ids = np.full((len(q), k), -1, np.int64)
-        todo = np.arange(len(q))
+        finite = np.isfinite(q).all(axis=1)                  # others: inf / −1
+        with np.errstate(invalid="ignore", over="ignore"):
+            cell = np.floor((q - self.lo) / self.h)
+        near = finite & np.all((cell >= -1) & (cell <= self.dims), axis=1)
+        far = np.nonzero(finite & ~near)[0]                  # more than a cell off the grid: brute force
+        todo = np.nonzero(near)[0]
         for r in (1, 2):
             if len(todo) == 0:
                 break
@@ -126,6 +131,7 @@ class CellGrid:
                 dist[sel[sure]], ids[sel[sure]] = d[sure], i[sure]
                 left.append(sel[~sure])
             todo = np.concatenate(left) if left else todo[:0]
+        todo = np.concatenate([todo, far])
         if len(todo):
             dist[todo], ids[todo] = knn_brute(self.points, q[todo], k)
         return dist, ids

@@ -30,6 +30,17 @@ def test_knn_matches_brute_force(name, points, queries, k):
     assert np.allclose(np.linalg.norm(points[i] - queries[:, None], axis=2), d)   # indices give them
 
 
+def test_knn_of_far_and_non_finite_queries():
+    rng = np.random.default_rng(4)
+    points = rng.random((200, 3))
+    q = np.array([[np.nan, 0, 0], [np.inf, 0, 0], [1e300, 1e300, -1e300], [40.0, -3.0, 2.0], [0.5, 0.5, 0.5]])
+    with np.errstate(all="raise"):
+        d, i = knn(points, q, 3)
+    assert np.all(np.isinf(d[:2])) and np.all(i[:2] == -1)           # nothing is near a non-finite point
+    d_ref, _ = knn_brute(points, q[2:], 3)
+    assert np.array_equal(d[2:], d_ref)
+
+
 def test_knn_brute_is_right_on_a_lattice():
     g = np.stack(np.meshgrid(*[np.arange(4.0)] * 3, indexing="ij"), -1).reshape(-1, 3)
     d, _ = knn_brute(g, np.array([[0.0, 0.0, 0.0], [1.5, 1.5, 1.5]]), 7)
