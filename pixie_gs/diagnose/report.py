@@ -169,7 +169,7 @@ def details(diagnosis: Diagnosis) -> dict:
 
 def plot_gap(path: Path, diagnosis: Diagnosis, after: np.ndarray, regions: list[dict]) -> None:
     """PNG: RMS gap over time before/after, per-region bars, candidate ranking (ΔBIC)."""
-    from matplotlib.figure import Figure  # no pyplot: no backend or GUI set-up (~0.5 s less)
+    from matplotlib.figure import Figure  # no pyplot: no backend selection or GUI set-up
 
     tr = diagnosis.tracks
     fb = per_frame_rms(residuals(tr.x, diagnosis.base_pred, tr.visible), tr.visible)
