@@ -40,7 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from pixie_gs.diagnose.measured import tracks_from_arrays  # noqa: E402
 from pixie_gs.diagnose.pipeline import DiagnoseOptions, diagnose  # noqa: E402
-from pixie_gs.diagnose.report import write_report  # noqa: E402
+from pixie_gs.diagnose.report import prefetch_plotting, write_report  # noqa: E402
 from pixie_gs.diagnose.synthetic import HIDDEN_EFFECTS, make_measurement, toss_scene, two_part_block  # noqa: E402
 from pixie_gs.progress import set_quiet  # noqa: E402
 
@@ -159,6 +159,7 @@ def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values
     start = time.perf_counter()
     cpu_start = time.process_time()
     tracks = tracks_from_arrays(arrays["t"], arrays["x"], cloud, ids=arrays["ids"])
+    prefetch_plotting()  # as `pixie diagnose` does before a diagnosis
     d = diagnose(cloud, scene, tracks, device=device, options=DiagnoseOptions(solver_floor=False, batch=batch))
     fitted = time.perf_counter()
     has_rerun = importlib.util.find_spec("rerun") is not None  # GPU boxes may lack rerun-sdk

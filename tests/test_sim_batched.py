@@ -12,7 +12,7 @@ import copy
 import numpy as np
 import pytest
 
-from pixie_gs.diagnose.forward import ForwardModel
+from pixie_gs.diagnose.forward import Fidelity, ForwardModel
 from pixie_gs.diagnose.measured import tracks_from_arrays
 from pixie_gs.diagnose.pipeline import DiagnoseOptions, diagnose
 from pixie_gs.diagnose.synthetic import make_measurement, toss_scene, two_part_block
@@ -173,6 +173,33 @@ def test_forward_model_batched_predictions_equal_one_by_one(device):
     assert many.runs == 3 and many.batches == 1
     for a, b in zip(got, ref + ref[:1]):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-4)
+
+
+def test_reduced_baseline_rides_in_the_first_prediction_batch():
+    """set_baseline runs only the full model; the reduced run of θ₀ goes out with the first
+    prediction's variants (one batch) and gives the same delta-corrected prediction as when it is
+    made alone first; a baseline replaced before any prediction never costs a reduced run."""
+    cloud = two_part_block(400, seed=0)
+    scene = toss_scene()
+    arrays = make_measurement(cloud, scene, 8, 25.0, "air_drag", None, {"k_per_m": 2.0}, fraction=0.1,
+                              seed=3, device="cpu")
+    tracks = tracks_from_arrays(arrays["t"], arrays["x"], cloud, ids=arrays["ids"])
+    fid = Fidelity(max_particles=200, min_grid=16)
+    variant = copy.deepcopy(scene)
+    variant.air_drag = 1.0
+    lazy = ForwardModel(cloud, tracks, device="cpu", batch=True, fidelity=fid)
+    assert lazy.is_reduced
+    other = copy.deepcopy(scene)
+    other.air_drag = 3.0
+    lazy.set_baseline(other)                  # replaced before use: its reduced run is never made
+    lazy.set_baseline(scene)
+    assert (lazy.runs, lazy.batches) == (2, 2)
+    got = lazy.predict(variant)
+    assert (lazy.runs, lazy.batches) == (4, 3)  # θ₀'s reduced run and the variant's: one batch
+    alone = ForwardModel(cloud, tracks, device="cpu", batch=True, fidelity=fid)
+    alone.set_baseline(scene)
+    alone.predict(scene)                      # θ₀'s reduced run first, on its own
+    np.testing.assert_allclose(got, alone.predict(variant), rtol=0, atol=1e-6)
 
 
 def test_batched_diagnosis_names_the_hidden_effect():

@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     from ..diagnose.forward import Fidelity
     from ..diagnose.measured import load_measured
     from ..diagnose.pipeline import DiagnoseOptions, diagnose
-    from ..diagnose.report import write_report
+    from ..diagnose.report import prefetch_plotting, write_report
     from ..progress import stage
     from ..sim.run import _material_arrays
     from ..sim.scene import Scene
@@ -120,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
                               fidelity=Fidelity(max_particles=args.max_particles), fill=args.fill,
                               checks=not args.no_checks, units=args.units, solver_floor=not args.no_floor)
     stage(f"diagnosing {args.model} against {tracks.num_points} tracked points × {tracks.num_frames} frames")
+    prefetch_plotting()  # the PNG's imports overlap the diagnosis
     result_diag = diagnose(cloud, scene, tracks, device=args.device, options=options)
     # write everything into a private folder first, then move the finished files into DIR
     staging = Path(tempfile.mkdtemp(prefix=".diagnose.", dir=out))

@@ -16,11 +16,13 @@ All lengths are in the splat's units (the tracks' after `--units`), times in sec
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import InputError
+from ..knn import CellGrid, knn
 from ..splat import SplatCloud
 from .measured import MeasuredTracks, match_to_gaussians
 
@@ -69,9 +71,9 @@ def _extent(p: np.ndarray) -> float:
 
 def gaussian_spacing(means: np.ndarray) -> float:
     """Median distance from a Gaussian centre to its nearest neighbour (splat units)."""
-    from scipy.spatial import cKDTree
-
-    d, _ = cKDTree(means).query(means, k=2)
+    if len(means) < 2:
+        return 0.0
+    d, _ = knn(means, means, k=2)
     return float(np.median(d[:, 1]))
 
 
@@ -87,13 +89,12 @@ def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def icp(points: np.ndarray, means: np.ndarray, iterations: int = 30) -> tuple[np.ndarray, np.ndarray]:
     """Rigid transform taking `points` onto the Gaussian centres (point-to-point ICP)."""
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(means)
+    grid = CellGrid(means)
     R, t = np.eye(3), means.mean(0) - points.mean(0)
     for _ in range(iterations):
         moved = points @ R.T + t
-        d, idx = tree.query(moved)
+        d, idx = grid.query(moved, k=1)
+        d, idx = d[:, 0], idx[:, 0]
         keep = d <= np.percentile(d, 90) + 1e-12   # trim the worst 10 % (outliers, partial views)
         R_new, t_new = kabsch(points[keep], means[idx[keep]])
         if np.allclose(R_new, R, atol=1e-7) and np.allclose(t_new, t, atol=1e-9):
@@ -179,8 +180,19 @@ def outlier_tracks(r: np.ndarray, visible: np.ndarray, rest: np.ndarray, part: n
     gives one large d. z = (d − median d) / (1.4826 MAD d), floored by the tracking noise; a
     track with z > OUTLIER_Z (Huber weight < 0.27) is an outlier.
     """
-    from scipy.spatial import cKDTree
+    d = outlier_distances(r, visible, rest, part, k)
+    med = float(np.median(d))
+    mad = float(np.median(np.abs(d - med))) * 1.4826
+    scale = max(mad, 3.0 * sigma, 1e-12)
+    z = (d - med) / scale
+    return z > OUTLIER_Z, z
 
+
+def outlier_distances(r: np.ndarray, visible: np.ndarray, rest: np.ndarray, part: np.ndarray,
+                      k: int = 6) -> np.ndarray:
+    """d_m = RMS over frames of |r_m − per-frame median of its k nearest tracked neighbours on
+    the same part| (M,), 0 where a part has < 3 tracks or a track < 2 usable frames; all tracks
+    at once (outlier_distances_reference is the per-track loop it replaces)."""
     M = r.shape[1]
     d = np.zeros(M)
     for p in np.unique(part):
@@ -188,18 +200,46 @@ def outlier_tracks(r: np.ndarray, visible: np.ndarray, rest: np.ndarray, part: n
         if len(idx) < 3:
             continue
         kk = min(k + 1, len(idx))
-        _, nb = cKDTree(rest[idx]).query(rest[idx], k=kk)
+        _, nb = knn(rest[idx], rest[idx], k=kk)
+        others = idx[nb[:, 1:]]                                           # (n, k) neighbours per track
+        ref = _nan_median(np.where(visible[:, others, None], r[:, others], np.nan), axis=2)   # (T, n, 3)
+        ok = visible[:, idx] & np.isfinite(ref).all(axis=2)              # (T, n)
+        sq = np.where(ok, np.sum((np.nan_to_num(r[:, idx]) - np.nan_to_num(ref)) ** 2, axis=2), 0.0)
+        count = ok.sum(axis=0)
+        use = count >= 2
+        d[idx[use]] = np.sqrt(sq.sum(axis=0)[use] / count[use])
+    return d
+
+
+def outlier_distances_reference(r: np.ndarray, visible: np.ndarray, rest: np.ndarray, part: np.ndarray,
+                                k: int = 6) -> np.ndarray:
+    """Plain reference of outlier_distances: one track at a time, brute-force neighbours, np.nanmedian."""
+    from ..knn import knn_brute
+
+    d = np.zeros(r.shape[1])
+    for p in np.unique(part):
+        idx = np.nonzero(part == p)[0]
+        if len(idx) < 3:
+            continue
+        _, nb = knn_brute(rest[idx], rest[idx], min(k + 1, len(idx)))
         for j, m in enumerate(idx):
             others = idx[nb[j, 1:]]
-            ref = np.nanmedian(np.where(visible[:, others, None], r[:, others], np.nan), axis=1)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a frame no neighbour saw → NaN, as intended
+                ref = np.nanmedian(np.where(visible[:, others, None], r[:, others], np.nan), axis=1)
             ok = visible[:, m] & np.isfinite(ref).all(axis=1)
             if ok.sum() >= 2:
                 d[m] = float(np.sqrt(np.mean(np.sum((r[ok, m] - ref[ok]) ** 2, axis=1))))
-    med = float(np.median(d))
-    mad = float(np.median(np.abs(d - med))) * 1.4826
-    scale = max(mad, 3.0 * sigma, 1e-12)
-    z = (d - med) / scale
-    return z > OUTLIER_Z, z
+    return d
+
+
+def _nan_median(a: np.ndarray, axis: int) -> np.ndarray:
+    """np.nanmedian along `axis` for short axes (a few neighbours), by sorting: NaN sorts last."""
+    a = np.sort(a, axis=axis)
+    n = np.sum(~np.isnan(a), axis=axis, keepdims=True)
+    lo = np.take_along_axis(a, np.maximum((n - 1) // 2, 0), axis=axis)
+    hi = np.take_along_axis(a, np.minimum(n // 2, a.shape[axis] - 1), axis=axis)
+    return np.squeeze(np.where(n > 0, 0.5 * (lo + hi), np.nan), axis=axis)
 
 
 def fit_time_offset(frames: np.ndarray, fps: float, x: np.ndarray, visible: np.ndarray, t: np.ndarray,

@@ -97,7 +97,8 @@ class ForwardModel:
             self.keep, self.reduced_ids = reduced_subset(len(cloud), tracks.ids, self.fidelity)
             self.grid_scale = self.fidelity.grid_scale
         self._full_base: np.ndarray | None = None
-        self._reduced_base: np.ndarray | None = None
+        self._reduced_base: np.ndarray | None = None   # reduced run of θ₀ (made on first use)
+        self._base_model: tuple | None = None          # θ₀ = (scene, cloud)
         self.cache = cache if cache is not None else {}
         self.cache_hits = 0
         self._context = _digest(tracks.ids, tracks.t, np.array([fill, self.frames, self.fps, len(cloud)]),
@@ -199,6 +200,12 @@ class ForwardModel:
         """Tracked points (T,M,3) of the full model `cloud` (default: the input) in `scene`."""
         return self._run(cloud if cloud is not None else self.cloud, scene, self.tracks.ids)
 
+    def simulate_full_many(self, variants: list[tuple[object, SplatCloud]]) -> list:
+        """simulate_full() of several (scene, cloud) variants at once (one batched simulation when
+        `batch`; cached, so a later simulate_full of one of them is free): per variant the tracked
+        points (T,M,3) or the ComputationError of a run that diverged."""
+        return self._run_many([(cloud, scene) for scene, cloud in variants], self.tracks.ids)
+
     def _coarse(self, scene):
         coarse = copy.deepcopy(scene)
         coarse.domain.grid = min(scene.domain.grid,
@@ -219,20 +226,17 @@ class ForwardModel:
                     raise RuntimeError("reduced grid changed after the baseline was set") from None
         return self._run_many([(sub, scene) for sub, (scene, _) in zip(subs, variants)], self.reduced_ids)
 
-    def _simulate_reduced(self, scene, cloud: SplatCloud) -> np.ndarray:
-        result = self._simulate_reduced_many([(scene, cloud)])[0]
-        if isinstance(result, Exception):
-            raise result
-        return result
-
     def set_baseline(self, scene, cloud: SplatCloud | None = None,
                      full_prediction: np.ndarray | None = None) -> np.ndarray:
-        """Make (scene, cloud) the current model θ₀; returns its full-model prediction."""
+        """Make (scene, cloud) the current model θ₀; returns its full-model prediction.
+
+        The reduced model's run of θ₀ is made only when a prediction needs it, in the same
+        batched simulation as that prediction's variants: a baseline that is replaced before
+        any prediction (the full-model polish sets several) costs no reduced run at all."""
         cloud = cloud if cloud is not None else self.cloud
         self._reduced_base = None
         self._full_base = full_prediction if full_prediction is not None else self.simulate_full(scene, cloud)
-        if self.is_reduced:
-            self._reduced_base = self._simulate_reduced(scene, cloud)
+        self._base_model = (scene, cloud)
         return self._full_base
 
     def predict(self, scene, cloud: SplatCloud | None = None) -> np.ndarray:
@@ -248,10 +252,16 @@ class ForwardModel:
         variants = [(scene, cloud if cloud is not None else self.cloud) for scene, cloud in variants]
         if not self.is_reduced:
             return self._run_many([(cloud, scene) for scene, cloud in variants], self.tracks.ids)
-        if self._full_base is None or self._reduced_base is None:
+        if self._full_base is None or self._base_model is None:
             raise RuntimeError("call set_baseline() before predict()")
-        return [r if isinstance(r, Exception) else self._full_base + (r - self._reduced_base)
-                for r in self._simulate_reduced_many(variants)]
+        with_base = self._reduced_base is None
+        results = self._simulate_reduced_many(([self._base_model] if with_base else []) + variants)
+        if with_base:
+            base = results.pop(0)
+            if isinstance(base, Exception):
+                raise base
+            self._reduced_base = base
+        return [r if isinstance(r, Exception) else self._full_base + (r - self._reduced_base) for r in results]
 
 
 def reduced_subset(n: int, ids: np.ndarray, fidelity: Fidelity) -> tuple[np.ndarray, np.ndarray]:

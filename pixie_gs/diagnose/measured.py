@@ -146,15 +146,12 @@ def match_to_gaussians(x: np.ndarray, visible: np.ndarray, means: np.ndarray) ->
     Assumes the object is still at its rest (input) pose when each point is first seen, as it is
     when tracking starts at t0. Points are matched one-to-one greedily by distance.
     """
-    from scipy.spatial import cKDTree
+    from ..knn import knn
 
     first = np.argmax(visible, axis=0)
     p0 = x[first, np.arange(x.shape[1])]
-    tree = cKDTree(means)
     k = min(8, len(means))
-    dist, idx = tree.query(p0, k=k)
-    dist = dist.reshape(len(p0), k)
-    idx = idx.reshape(len(p0), k)
+    dist, idx = knn(means, p0, k=k)
     ids = np.full(len(p0), -1, np.int64)
     out_d = np.zeros(len(p0))
     taken: set[int] = set()

@@ -32,6 +32,7 @@ OFFSET_SEARCH_FRAMES = 3.0      # start-time offsets searched: ± this many fram
 RIVAL_WITHIN = 0.1              # reduced model: rivals within 10 % of the winner's ΔBIC are settled on the full model
 MAX_RIVALS = 2
 MAX_CORRECTIONS = 3             # full-model secant corrections of an effect fitted on the reduced model
+FIT_MODULES = ("scipy.optimize", "scipy.cluster.vq")   # lsq_linear (fit.py), kmeans2 (locate.py)
 OFFSET_MAX_LOSS_RATIO = 0.3     # an applied offset must cut the early frames' Huber loss by 70 %
 
 
@@ -255,6 +256,9 @@ class _Runner:
 def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "auto",
              options: DiagnoseOptions | None = None, cache: dict | None = None) -> Diagnosis:
     """Find, fit and add the effects the model (cloud + scene) is missing versus `tracks`."""
+    from ..prefetch import prefetch
+
+    prefetch(*FIT_MODULES)  # imported while the first simulations run
     options = options or DiagnoseOptions()
     effects = list(registry().values()) if not options.effects else [get_effect(n) for n in options.effects]
     if not effects:
@@ -417,11 +421,13 @@ def _settle_on_full_model(runner: _Runner, problem: Problem, result: RoundResult
     assert chosen is not None
     rivals = [s for s in result.ranking[1:] if s.significant and (s.effect, s.part) in by_key
               and s.delta_bic >= (1.0 - RIVAL_WITHIN) * chosen.delta_bic][:MAX_RIVALS]
-    settled = []
+    cands, polishes = [], []
     for s in [chosen] + rivals:
         cand = by_key[(s.effect, s.part)]
         scene1, cloud1 = cand.effect.apply(scene0, cloud0, cand.part, dict(s.params))
-        settled.append((cand, _polish_on_full_model(runner, problem, cand, s, scene0, cloud0, scene1, cloud1)))
+        cands.append(cand)
+        polishes.append(_polish_on_full_model(runner, problem, cand, s, scene0, cloud0, scene1, cloud1))
+    settled = list(zip(cands, _run_in_lockstep(runner.model, polishes)))
     best_cand, best = min(settled, key=lambda item: item[1][3].sse)
     if rivals:
         stage("full-model check of close rivals: " + ", ".join(
@@ -431,6 +437,23 @@ def _settle_on_full_model(runner: _Runner, problem: Problem, result: RoundResult
             old = next(i for i, s in enumerate(result.ranking) if (s.effect, s.part) == (best[3].effect, best[3].part))
             result.ranking.insert(0, result.ranking.pop(old))
     return best_cand, best
+
+
+def _run_in_lockstep(model: ForwardModel, polishes: list) -> list:
+    """Drive several _polish_on_full_model generators together: each step's full-model runs of
+    all of them go out as ONE batched simulation (model.simulate_full_many) → their results."""
+    results: list = [None] * len(polishes)
+    requests = {i: next(g) for i, g in enumerate(polishes)}
+    while requests:
+        keys = list(requests)
+        preds = model.simulate_full_many([requests[i] for i in keys])
+        for i, pred in zip(keys, preds):
+            try:
+                requests[i] = polishes[i].throw(pred) if isinstance(pred, Exception) else polishes[i].send(pred)
+            except StopIteration as done:
+                results[i] = done.value
+                del requests[i]
+    return results
 
 
 def _polish_on_full_model(runner: _Runner, problem: Problem, winner: Candidate, chosen: Scored,
@@ -445,11 +468,15 @@ def _polish_on_full_model(runner: _Runner, problem: Problem, winner: Candidate, 
     still moves by more than 5 % and the fit improves, the step is rescaled again from the
     newest run (a response that is not linear in the parameter needs more than one). The
     chosen effect is re-scored with full-model residuals either way.
+
+    A generator: it yields each (scene, cloud) whose full-model prediction it needs and is sent
+    that prediction (_run_in_lockstep batches the runs of several); it returns
+    (scene1, cloud1, pred1, rescored) and leaves (scene1, cloud1) as the model's baseline.
     """
     from .fit import from_linear_coord, linear_coord
 
     model = runner.model
-    pred1 = model.set_baseline(scene1, cloud1)
+    pred1 = yield scene1, cloud1
     sse1 = float(np.sum(residuals(problem.measured_x, pred1, problem.visible) ** 2))
     params = winner.params
     if params and all(p.off is not None for p in params):
@@ -466,14 +493,13 @@ def _polish_on_full_model(runner: _Runner, problem: Problem, winner: Candidate, 
                 u0, u1 = linear_coord(p, p.off), linear_coord(p, chosen.params[p.name])
                 values[p.name] = float(np.clip(from_linear_coord(p, u0 + lam * (u1 - u0)), p.lo, p.hi))
             s2, c2 = winner.effect.apply(scene0, cloud0, winner.part, values)
-            pred2 = model.simulate_full(s2, c2)
+            pred2 = yield s2, c2
             sse2 = float(np.sum(residuals(problem.measured_x, pred2, problem.visible) ** 2))
             if not sse2 < sse1:
                 break
             corrections.append(lam)
             scene1, cloud1, pred1, sse1 = s2, c2, pred2, sse2
             chosen = Scored(**{**chosen.__dict__, "params": values})
-            model.set_baseline(scene1, cloud1, full_prediction=pred1)
         if corrections:
             stage(f"full-model correction of {winner.label}: step × {' × '.join(f'{c:.2f}' for c in corrections)}")
     n = runner.tracks.num_observations
@@ -484,4 +510,5 @@ def _polish_on_full_model(runner: _Runner, problem: Problem, winner: Candidate, 
     rescored.evidence = evidence(problem, pred1, {"part": problem.cloud.get("part_id")[runner.tracks.ids]},
                                  runner.tracks.t)
     rescored.significant = chosen.significant
+    model.set_baseline(scene1, cloud1, full_prediction=pred1)
     return scene1, cloud1, pred1, rescored

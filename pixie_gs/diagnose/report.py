@@ -22,7 +22,7 @@ from ..splat import SplatCloud
 from .locate import per_frame_rms, residuals, rms_gap, spatial_clusters
 from .measured import MeasuredTracks
 from .ambiguity import separation_hint
-from .pipeline import Diagnosis
+from .pipeline import FIT_MODULES, Diagnosis
 
 
 def bake_material_overrides(scene, cloud: SplatCloud) -> tuple[object, SplatCloud]:
@@ -169,15 +169,13 @@ def details(diagnosis: Diagnosis) -> dict:
 
 def plot_gap(path: Path, diagnosis: Diagnosis, after: np.ndarray, regions: list[dict]) -> None:
     """PNG: RMS gap over time before/after, per-region bars, candidate ranking (ΔBIC)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: no backend selection or GUI set-up
 
     tr = diagnosis.tracks
     fb = per_frame_rms(residuals(tr.x, diagnosis.base_pred, tr.visible), tr.visible)
     fa = per_frame_rms(residuals(tr.x, after, tr.visible), tr.visible)
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    fig = Figure(figsize=(15, 4.2))
+    axes = fig.subplots(1, 3)
     ax = axes[0]
     ax.plot(tr.t, fb, "o-", ms=3, color="tab:red", label="model as given")
     label = " + ".join(s.label for s in diagnosis.accepted) or "no effect added"
@@ -218,8 +216,19 @@ def plot_gap(path: Path, diagnosis: Diagnosis, after: np.ndarray, regions: list[
         ax.text(0.5, 0.5, why, ha="center", va="center", transform=ax.transAxes, fontsize=10)
     fig.tight_layout()
     with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+        fig.savefig(tmp, dpi=110, format="png")  # Agg, chosen by the format
+
+
+PLOT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg")
+
+
+def prefetch_plotting() -> None:
+    """Start importing what plot_gap needs in the background (prefetch.py): a caller that will
+    write the PNG after a diagnosis calls this before it, so the import overlaps the simulations
+    (queued after the fit's modules, which the diagnosis needs sooner)."""
+    from ..prefetch import prefetch
+
+    prefetch(*FIT_MODULES, *PLOT_MODULES)
 
 
 def record(path: Path, diagnosis: Diagnosis, after: np.ndarray) -> None:

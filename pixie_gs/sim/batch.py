@@ -58,6 +58,8 @@ class _Run:
     moving: np.ndarray
     moving_snow: np.ndarray
     wind_peak: float
+    accel: float = 0.0  # |gravity| + peak wind acceleration, m/s² (bounds a frame's speed-up)
+    has_snow: bool = False  # moving_snow.any(), asked every frame
     c_static: float = 0.0
     alive: bool = True
     error: ComputationError | None = None
@@ -128,6 +130,8 @@ class BatchedSolver:
         self.run = wp.array(np.repeat(np.arange(self.k, dtype=np.int32), counts), dtype=wp.int32, device=d)
         for run in self._runs:
             self._set_stiffness(run)
+            run.accel = float(np.linalg.norm(run.scene.gravity)) + run.wind_peak
+            run.has_snow = bool(run.moving_snow.any())
         shape = (self.k,) + tuple(self.dims)
         self.grid_mass = wp.zeros(shape, dtype=float, device=d)
         self.grid_momentum = wp.zeros(shape, dtype=wp.vec3, device=d)
@@ -152,6 +156,11 @@ class BatchedSolver:
         self.bad = wp.zeros((self.k, 7), dtype=wp.int32, device=d)
         self._pending = [(r, i) for r, run in enumerate(self._runs) for i in range(len(run.scene.impulses))]
         self._stats: tuple[np.ndarray, np.ndarray] | None = None
+        self.fetch_positions = False  # GPU: bring x back with every frame's statistics (one sync)
+        self._pinned: dict[int, wp.array] = {}      # GPU: page-locked host mirrors (async copies)
+        self._uploaded: dict[int, np.ndarray] = {}  # last values sent per device array
+        self._x_host: np.ndarray | None = None       # positions fetched at the end of frame _x_frame
+        self._x_frame = -1
         self._record_launches()
         self.graph = None
         if d != "cpu" and (CUDA_GRAPH if graph is None else graph):
@@ -231,7 +240,7 @@ class BatchedSolver:
         return math.inf if c_mps == 0.0 else self.scene.solver.cfl * self.dx / c_mps
 
     def _wave_speed(self, run: _Run, snow_wave: float) -> float:
-        return max(run.c_static, snow_wave) if run.moving_snow.any() else run.c_static
+        return max(run.c_static, snow_wave) if run.has_snow else run.c_static
 
     def _substeps(self, r: int, frame_dt_s: float, max_speed: float, snow_wave: float) -> int:
         run = self._runs[r]
@@ -240,18 +249,53 @@ class BatchedSolver:
         n_elastic = math.ceil(frame_dt_s / dt) if math.isfinite(dt) else 1
         if n_elastic > s.max_substeps_per_frame:
             return 0  # over the budget: the caller runs it alone (MPMSolver's stiff-part handling)
-        accel = float(np.linalg.norm(run.scene.gravity)) + run.wind_peak
         kicks = sum(float(np.linalg.norm(run.scene.impulses[i].velocity_change)) for rr, i in self._pending
-                    if rr == r and run.scene.impulses[i].time_s < self.time_s + frame_dt_s)
-        v_bound = max_speed + accel * frame_dt_s + kicks
+                    if rr == r and run.scene.impulses[i].time_s < self.time_s + frame_dt_s) if self._pending else 0.0
+        v_bound = max_speed + run.accel * frame_dt_s + kicks
         n_velocity = math.ceil(frame_dt_s * v_bound / (s.velocity_cfl * self.dx))
         return int(min(max(1, n_elastic, n_velocity), s.max_substeps_per_frame))
 
+    # ------------------------------------------------------------------ host <-> device
+    def _host_mirror(self, a: wp.array) -> wp.array:
+        """A page-locked host array shaped like device array `a` (made once)."""
+        buf = self._pinned.get(id(a))
+        if buf is None:
+            buf = self._pinned[id(a)] = wp.empty(a.shape, dtype=a.dtype, device="cpu", pinned=True)
+        return buf
+
+    def _upload(self, a: wp.array, values: np.ndarray) -> None:
+        """a ← values, skipped when they are the ones sent last. On a GPU through a page-locked
+        mirror, so the copy is queued without waiting for the substeps in flight (every mirror is
+        written once per frame and each frame ends in a sync, so a queued copy has run before its
+        mirror is written again)."""
+        last = self._uploaded.get(id(a))
+        if last is not None and last.shape == values.shape and np.array_equal(last, values):
+            return
+        self._uploaded[id(a)] = values.copy()
+        if self.device == "cpu":
+            a.assign(values)
+            return
+        buf = self._host_mirror(a)
+        buf.numpy()[...] = values
+        wp.copy(a, buf)
+
+    def _fetch(self, arrays: list[wp.array]) -> list[np.ndarray]:
+        """Host views of `arrays`, valid until the next _fetch: on a GPU copied into page-locked
+        mirrors and waited for ONCE (one sync for all), on the CPU the arrays themselves."""
+        if self.device == "cpu":
+            return [a.numpy() for a in arrays]
+        bufs = [self._host_mirror(a) for a in arrays]
+        for buf, a in zip(bufs, arrays):
+            wp.copy(buf, a)
+        wp.synchronize_device(self.device)
+        return [buf.numpy() for buf in bufs]
+
     # ------------------------------------------------------------------ stepping
     def _reduce(self, v_limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per-run (maxima (K,2): fastest particle, fastest snow wave; bad (K,7) per material)."""
-        self.v_limit.assign(v_limits.astype(np.float32))
-        self.alive_flag.assign(np.array([int(r.alive) for r in self._runs], np.int32))
+        """Per-run (maxima (K,2): fastest particle, fastest snow wave; bad (K,7) per material);
+        with `fetch_positions` on a GPU, the positions come back in the same sync."""
+        self._upload(self.v_limit, v_limits.astype(np.float32))
+        self._upload(self.alive_flag, np.array([int(r.alive) for r in self._runs], np.int32))
         self.maxima.zero_()
         self.bad.zero_()
         st = self.state
@@ -259,7 +303,11 @@ class BatchedSolver:
                   inputs=[st.x, st.v, st.F, st.Jp, self.material, self.fixed_flag, self.wave_c, self.run,
                           self.alive_flag, self.scene.materials.snow_hardening, self.v_limit, MAX_STRETCH,
                           self.maxima, self.bad])
-        return self.maxima.numpy().astype(np.float64), self.bad.numpy()
+        with_x = self.fetch_positions and self.device != "cpu"
+        out = self._fetch([self.maxima, self.bad] + ([st.x] if with_x else []))
+        if with_x:
+            self._x_host, self._x_frame = out[2], self.frame
+        return out[0].astype(np.float64), out[1].copy()
 
     @property
     def alive(self) -> np.ndarray:
@@ -301,11 +349,11 @@ class BatchedSolver:
                     run.alive = False
                     run.over_budget = True
         dts = np.where(n_sub > 0, frame_dt_s / np.maximum(n_sub, 1), 0.0)
-        self.n_sub.assign(n_sub)
-        self.dt_run.assign(dts.astype(np.float32))
-        self.dt_run64.assign(dts)
+        self._upload(self.n_sub, n_sub)
+        self._upload(self.dt_run, dts.astype(np.float32))
+        self._upload(self.dt_run64, dts)
         t0 = self.time_s
-        self.frame_start.assign(np.array([t0], np.float64))
+        self._upload(self.frame_start, np.array([t0], np.float64))
         if self._substep_host is not None:
             self._substep_host[0] = 0
         else:
@@ -386,6 +434,8 @@ class BatchedSolver:
 
     def _guard(self, bad: np.ndarray, v_limits: np.ndarray) -> None:
         """Stop every live run with particles that went non-finite or ran away (MPMSolver._guard)."""
+        if not bad.any():  # the usual frame: one test instead of one per run
+            return
         for r, run in enumerate(self._runs):
             counts_all = bad[r]
             if not run.alive or not counts_all.any():
@@ -404,8 +454,13 @@ class BatchedSolver:
     # ------------------------------------------------------------------ results
     def positions(self, r: int | None = None) -> np.ndarray:
         """Positions (N_r,3) float32 world m of run r (None: every particle, run after run)."""
-        x = self.state.x.numpy()
+        x = self._x_host if self._x_frame == self.frame and self._x_host is not None else self.state.x.numpy()
         return x.copy() if r is None else x[self.offsets[r]:self.offsets[r + 1]].copy()
+
+    def positions_at(self, slots: np.ndarray) -> np.ndarray:
+        """Positions (len(slots),3) float32 world m of the given particle slots (all runs' numbering)."""
+        x = self._x_host if self._x_frame == self.frame and self._x_host is not None else self.state.x.numpy()
+        return x[slots]
 
     def deformation_gradients(self, r: int) -> np.ndarray:
         """F (N_r,3,3) float32 of run r."""
@@ -433,23 +488,25 @@ def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: flo
         raise InputError(f"fps must be > 0, got {fps}")
     built = [build_particles(cloud, scene, fill=fill) for cloud, scene in models]
     solver = BatchedSolver([(p, sc) for (p, _), (_, sc) in zip(built, models)], device, graph=graph)
+    solver.fetch_positions = True  # read every frame: with the frame's statistics, one sync
     t = np.arange(frames, dtype=np.float64) / fps
     ns = [len(cloud) for cloud, _ in models]
     pick = [np.arange(n) if points is None else np.asarray(points, np.int64) for n in ns]
     x0_in = [cloud.means[k].astype(np.float32) for (cloud, _), k in zip(models, pick)]
     x0_world = [p.x[k].astype(np.float64) for (p, _), k in zip(built, pick)]
     xs = [np.empty((frames, len(k), 3), np.float32) for k in pick]
-    for r in range(len(models)):
-        xs[r][0] = x0_in[r]
+    slots = np.concatenate([int(solver.offsets[r]) + k for r, k in enumerate(pick)])
+    ends = np.cumsum([len(k) for k in pick])
     steps = range(1, frames) if quiet else progress(range(1, frames), desc=f"simulate ×{len(models)}",
                                                     total=frames - 1, unit="frame")
+    # per frame only a copy of the picked world positions (the GPU idles while the host works
+    # between frames); mapped to input coordinates once at the end
     for i in steps:
         solver.step_frame(1.0 / fps)
-        x_all = solver.positions()
-        for r, ((_, tf), alive) in enumerate(zip(built, solver.alive)):
+        x_pick = solver.positions_at(slots)
+        for r, alive in enumerate(solver.alive):
             if alive:
-                xw = x_all[int(solver.offsets[r]) + pick[r]]
-                xs[r][i] = x0_in[r] + tf.displacement_to_input(xw - x0_world[r]).astype(np.float32)
+                xs[r][i] = x_pick[ends[r] - len(pick[r]):ends[r]]
         if not solver.alive.any():
             break
     out: list = []
@@ -458,6 +515,12 @@ def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: flo
         if err is not None:
             out.append(err)
             continue
+        if not solver.over_budget[r]:  # alive to the end: every frame holds world positions
+            xs[r][0] = x0_in[r]
+            step = max(1, 4_000_000 // max(3 * len(pick[r]), 1))  # frames per float64 temporary (~32 MB)
+            for a in range(1, frames, step):
+                xw = xs[r][a:a + step]
+                xs[r][a:a + step] = x0_in[r] + tf.displacement_to_input(xw - x0_world[r]).astype(np.float32)
         if solver.over_budget[r]:  # stiff parts: the unbatched solver decides (rigid / softened / error)
             try:
                 alone = simulate(*models[r], frames, fps, device=device, fill=fill, quiet=True)
