@@ -71,8 +71,11 @@ def warp_arrays_bytes(solver, n: int) -> tuple[int, int]:
 
     seen: set[int] = set()
     per_particle = total = 0
+    from pixie_gs.sim.state import State
+
     for value in vars(solver).values():
-        values = value.values() if isinstance(value, dict) else value if isinstance(value, (list, tuple)) else [value]
+        values = value.values() if isinstance(value, dict) else value if isinstance(value, (list, tuple)) \
+            else value.arrays() if isinstance(value, State) else [value]
         for arr in values:
             if isinstance(arr, wp.array) and id(arr) not in seen:
                 seen.add(id(arr))
@@ -118,7 +121,7 @@ class KernelTimer:
 
 
 def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str = "lattice",
-              p2g: str = "auto") -> dict:
+              p2g: str = "auto", sort_substeps: int | None = None, frames: int = 1) -> dict:
     import warp as wp
 
     from pixie_gs.sim.solver import MPMSolver
@@ -126,16 +129,19 @@ def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str
     particles, scene = block_problem(n_target, shuffle=order != "lattice")
     n = len(particles)
     sort = {} if order == "sorted" else {"sort_every": 0}  # sorted: the solver's default (every frame)
-    solver = MPMSolver(particles, scene, device, p2g=p2g, **sort)
+    solver = MPMSolver(particles, scene, device, p2g=p2g, sort_substeps=sort_substeps, **sort)
     dt = float(solver.dt)
     # step_frame(k·dt) runs k substeps of the CFL dt (the solver's own counter says how many)
     solver.step_frame(warmup * dt * (1 - 1e-6))
     wp.synchronize_device(device)
-    done = solver.particle_substeps
-    t0, c0 = time.perf_counter(), time.process_time()
-    solver.step_frame(substeps * dt * (1 - 1e-6))
-    wp.synchronize_device(device)
-    seconds, cpu_seconds = time.perf_counter() - t0, time.process_time() - c0
+    frame_rates = []  # each timed frame alone: the same frames for every variant (same physics)
+    for _ in range(frames):
+        done = solver.particle_substeps
+        t0, c0 = time.perf_counter(), time.process_time()
+        solver.step_frame(substeps * dt * (1 - 1e-6))
+        wp.synchronize_device(device)
+        seconds, cpu_seconds = time.perf_counter() - t0, time.process_time() - c0
+        frame_rates.append((solver.particle_substeps - done) / seconds)
     substeps = (solver.particle_substeps - done) // n
     host = dict(solver.timing)
     # the instrumented frame: per-kernel device time
@@ -159,7 +165,8 @@ def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str
     assert np.isfinite(x).all(), "block diverged"
     pp, total = warp_arrays_bytes(solver, n)
     return {"n": n, "order": order, "p2g": solver.p2g_kind, "seconds": seconds, "cpu_seconds": cpu_seconds, "substeps": substeps,
-            "rate": n * substeps / seconds, "bytes_particle_state": pp / n, "bytes_all_per_particle": total / n,
+            "rate": float(np.mean(frame_rates)), "frame_rates": frame_rates,
+            "sort_substeps": solver.sort_substeps if solver.sort_every > 0 and solver.p2g_kind != "atomic" else None, "bytes_particle_state": pp / n, "bytes_all_per_particle": total / n,
             "dt": dt, "host": host, "kernels": kernels, "reduction_s": reduction_s, "sort_s": sort_s}
 
 
@@ -244,9 +251,15 @@ def main() -> None:
     parser.add_argument("--baseline-substeps", type=int, default=3)
     parser.add_argument("--order", nargs="+", default=["random", "sorted"], choices=["lattice", "random", "sorted"],
                         help="particle order(s) to time (see above)")
-    parser.add_argument("--p2g", nargs="+", default=["auto"], choices=["auto", "chunked", "atomic"],
+    parser.add_argument("--p2g", nargs="+", default=["auto"], choices=["auto", "chunked", "atomic", "block"],
                         help="P2G kernel(s): chunked (one thread per same-cell run), atomic (the plain one), "
+                             "block (16 threads per run of a 2x2x2-cell block, sorted orders only), "
                              "auto (solver default: chunked on a GPU, atomic on the CPU)")
+    parser.add_argument("--sort-substeps", type=int, nargs="+", default=[0],
+                        help="in-frame index re-sort interval(s) in substeps for the sorted order "
+                             "(0: the solver's default)")
+    parser.add_argument("--frames", type=int, default=1,
+                        help="timed frames of --substeps each, one after the other (each printed, mean reported)")
     args = parser.parse_args()
 
     from pixie_gs.devices import resolve_warp_device
@@ -264,12 +277,20 @@ def main() -> None:
           f"({base['substeps']} substeps in {base['seconds']:.2f} s wall, {base['cpu_seconds']:.2f} s process CPU)")
     results = []
     for n in args.sizes:
-        for order, p2g in [(o, k) for o in args.order for k in args.p2g]:
-            r = time_warp(n, device, args.warmup, substeps, order, p2g)
+        for order, p2g, k_sort in [(o, k, s) for o in args.order for k in args.p2g for s in args.sort_substeps]:
+            if p2g == "block" and order != "sorted":
+                continue  # the block P2G needs the solver's sorting
+            if k_sort != args.sort_substeps[0] and (order != "sorted" or p2g == "atomic"):
+                continue  # no in-frame re-sort to vary
+            r = time_warp(n, device, args.warmup, substeps, order, p2g, k_sort or None, args.frames)
             results.append(r)
             cpu_rate = f" [{r['n'] * r['substeps'] / r['cpu_seconds'] / 1e6:.3f} M per process-CPU s]" \
                 if device == "cpu" and r["cpu_seconds"] > 0 else ""
-            print(f"warp {device:<6} {r['n']:>9} particles {order:<7} P2G {r['p2g']:<6} {r['rate'] / 1e6:10.3f} M particle-substeps/s"
+            resort = f" re-sort/{r['sort_substeps']}" if r["sort_substeps"] else ""
+            frames = "" if len(r["frame_rates"]) < 2 else \
+                " (frames: " + " / ".join(f"{x / 1e6:.0f}" for x in r["frame_rates"]) + ", mean)"
+            print(f"warp {device:<6} {r['n']:>9} particles {order:<7} P2G {r['p2g']:<7}{resort} "
+                  f"{r['rate'] / 1e6:10.3f} M particle-substeps/s{frames}"
                   f"{cpu_rate} ({r['substeps']} substeps in one step_frame, {r['seconds']:.3f} s wall, "
                   f"{r['cpu_seconds']:.2f} s process CPU, dt {r['dt']:.2e} s)  "
                   f"memory {r['bytes_particle_state']:.0f} B/particle state, {r['bytes_all_per_particle']:.0f} B/particle "
@@ -277,22 +298,32 @@ def main() -> None:
             k, h = r["kernels"], r["host"]
             per_sub = sum(k.values())
             print(f"    per substep (device): P2G {k.get('p2g', 0) * 1e3:.3f} ms, grid {k.get('grid', 0) * 1e3:.3f} ms, "
-                  f"G2P {k.get('g2p', 0) * 1e3:.3f} ms = {per_sub * 1e3:.3f} ms "
+                  f"G2P {k.get('g2p', 0) * 1e3:.3f} ms, in-frame index sort {k.get('sort', 0) * 1e3:.3f} ms "
+                  f"= {per_sub * 1e3:.3f} ms "
                   f"(kernels alone: {r['n'] / per_sub / 1e6:.1f} M particle-substeps/s)")
             print(f"    timed frame, host seconds: re-sort {h['sort_s']:.4f}, CFL reduction {h['stats_s']:.4f}, "
                   f"issuing {r['substeps']} substeps {h['launch_s']:.4f}, guard incl. waiting for the device "
                   f"{h['guard_s']:.4f}; one reduction {r['reduction_s'] * 1e3:.3f} ms, one re-sort "
                   f"{r['sort_s'] * 1e3:.2f} ms (peak +{2 * 8 + 36} B/particle while sorting)")
     for order in args.order:
-        rows = [r for r in results if r["order"] == order and r["p2g"] == results[0]["p2g"]]
+        rows = [r for r in results if r["order"] == order and r["p2g"] == results[0]["p2g"]
+                and r["sort_substeps"] == results[0]["sort_substeps"]]
         if len(rows) >= 2:
             a, b = rows[0], rows[-1]
             print(f"scaling {a['n']} -> {b['n']} particles ({order}): throughput ratio {b['rate'] / a['rate']:.2f}")
+    for n in sorted({r["n"] for r in results}):  # variants against the solver's default, same run
+        same = [r for r in results if r["n"] == n and r["order"] == "sorted"]
+        base_rows = [r for r in same if r["p2g"] == same[0]["p2g"] and r["sort_substeps"] == same[0]["sort_substeps"]]
+        for r in same[1:] if base_rows else []:
+            print(f"variant vs baseline ({n} particles, sorted): P2G {r['p2g']} re-sort/{r['sort_substeps']} "
+                  f"{r['rate'] / 1e6:.0f} M / P2G {same[0]['p2g']} re-sort/{same[0]['sort_substeps']} "
+                  f"{same[0]['rate'] / 1e6:.0f} M = {r['rate'] / same[0]['rate']:.3f}")
     if device.startswith("cuda"):
         for r in results:
             if r["order"] != "lattice" and r["n"] >= 900_000:
                 goal = 2500e6 if r["n"] < 2_000_000 else 2400e6
-                print(f"issue 14 goal >= {goal / 1e6:.0f} M particle-substeps/s, {r['order']} input order, P2G {r['p2g']}, "
+                resort = f" re-sort/{r['sort_substeps']}" if r["sort_substeps"] else ""
+                print(f"issue 14 goal >= {goal / 1e6:.0f} M particle-substeps/s, {r['order']} input order, P2G {r['p2g']}{resort}, "
                       f"{r['n']} particles: {'MET' if r['rate'] >= goal else 'NOT MET'} ({r['rate'] / 1e6:.1f} M)")
 
 

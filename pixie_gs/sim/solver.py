@@ -463,6 +463,8 @@ class MPMSolver:
         for s in range(n_sub):
             if self.sort_every > 0 and self.p2g_kind in ("chunked", "block") and s > 0 and s % self.sort_substeps == 0:
                 self._reindex()  # all on the device: the launches queue behind the substeps
+                if self.kernel_timer is not None:
+                    self.kernel_timer.mark("sort")
             t = t0 + s * dt
             self._apply_impulses(t + dt)
             self._substep(dt, t)
