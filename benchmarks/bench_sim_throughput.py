@@ -251,9 +251,9 @@ def main() -> None:
     parser.add_argument("--baseline-substeps", type=int, default=3)
     parser.add_argument("--order", nargs="+", default=["random", "sorted"], choices=["lattice", "random", "sorted"],
                         help="particle order(s) to time (see above)")
-    parser.add_argument("--p2g", nargs="+", default=["auto"], choices=["auto", "chunked", "atomic", "block"],
+    parser.add_argument("--p2g", nargs="+", default=["auto"], choices=["auto", "chunked", "atomic", "block", "block32"],
                         help="P2G kernel(s): chunked (one thread per same-cell run), atomic (the plain one), "
-                             "block (16 threads per run of a 2x2x2-cell block, sorted orders only), "
+                             "block / block32 (16 / 32 threads per run of a 2x2x2-cell block, sorted order only), "
                              "auto (solver default: chunked on a GPU, atomic on the CPU)")
     parser.add_argument("--sort-substeps", type=int, nargs="+", default=[0],
                         help="in-frame index re-sort interval(s) in substeps for the sorted order "
@@ -278,7 +278,7 @@ def main() -> None:
     results = []
     for n in args.sizes:
         for order, p2g, k_sort in [(o, k, s) for o in args.order for k in args.p2g for s in args.sort_substeps]:
-            if p2g == "block" and order != "sorted":
+            if p2g.startswith("block") and order != "sorted":
                 continue  # the block P2G needs the solver's sorting
             if k_sort != args.sort_substeps[0] and (order != "sorted" or p2g == "atomic"):
                 continue  # no in-frame re-sort to vary

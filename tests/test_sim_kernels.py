@@ -229,10 +229,11 @@ def test_solver_with_fast_p2g_agrees_with_the_atomic_one(device):
     assert np.abs(runs[0] - runs[1]).max() < 1e-5
 
 
-def block_scatter(sim: MPMSolver, runs: np.ndarray, index: np.ndarray, keys: np.ndarray,
+def block_scatter(sim: MPMSolver, lanes: int, runs: np.ndarray, index: np.ndarray, keys: np.ndarray,
                   groups: int) -> tuple[np.ndarray, ...]:
-    """(grid mass, momentum, fixed weight) after one block P2G (sim/p2g_block.py) of runs
-    `runs` (starts followed by N) over particles index[i], block keys[i], `groups` thread groups."""
+    """(grid mass, momentum, fixed weight) after one block P2G (sim/p2g_block.py, `lanes` threads
+    per run) of runs `runs` (starts followed by N) over particles index[i], block keys[i],
+    `groups` thread groups."""
     import warp as wp
 
     from pixie_gs.sim import p2g_block
@@ -241,7 +242,7 @@ def block_scatter(sim: MPMSolver, runs: np.ndarray, index: np.ndarray, keys: np.
     out = [wp.zeros(sim.dims, dtype=t, device=d) for t in (float, wp.vec3, float)]
     inputs = [sim.x, sim.v, sim.C, sim.stress, sim.volume, sim.mass, sim.fixed_flag, sim.grid_info, 1e-3]
     ints = [wp.array(np.asarray(a, np.int32), dtype=wp.int32, device=d) for a in (runs, [len(runs) - 1], index, keys)]
-    wp.launch(p2g_block.p2g_blocks, dim=groups * p2g_block.LANES, device=d, inputs=inputs + ints + [groups] + out)
+    wp.launch(p2g_block.block_kernel(lanes), dim=groups * lanes, device=d, inputs=inputs + ints + [groups] + out)
     return tuple(a.numpy() for a in out)
 
 
@@ -254,7 +255,8 @@ def block_keys(sim: MPMSolver, x: np.ndarray) -> np.ndarray:
     return (cell[:, 0] * kd[1] + cell[:, 1]) * kd[2] + cell[:, 2]
 
 
-def test_block_p2g_matches_the_plain_atomic_kernel(device):
+@pytest.mark.parametrize("lanes", [16, 32])
+def test_block_p2g_matches_the_plain_atomic_kernel(device, lanes):
     scene = scene_for_tests()
     sim = MPMSolver(mixed_block(scene), scene, device, sort_every=1, p2g="block")
     rng = np.random.default_rng(3)
@@ -273,7 +275,7 @@ def test_block_p2g_matches_the_plain_atomic_kernel(device):
     chunks = np.append(np.arange(0, sim.n, 13), sim.n)
     cases.append((chunks, perm, block_keys(sim, sim.x.numpy())[perm], 50))
     reference_before = scatter(sim, "atomic")
-    results = [block_scatter(sim, *case) for case in cases]
+    results = [block_scatter(sim, lanes, *case) for case in cases]
     # particles drifted since the sort: move each by up to ±0.6 cells, keep the old runs and keys
     x = sim.x.numpy()
     moved = x + rng.uniform(-0.6, 0.6, x.shape).astype(np.float32) * sim.dx
@@ -281,7 +283,7 @@ def test_block_p2g_matches_the_plain_atomic_kernel(device):
     drifted = block_keys(sim, moved) != own_keys
     assert 0.3 < drifted.mean() < 0.95  # both paths run
     reference_after = scatter(sim, "atomic")
-    results.append(block_scatter(sim, own_runs, identity, own_keys, 64))
+    results.append(block_scatter(sim, lanes, own_runs, identity, own_keys, 64))
     for ref, fast in zip([reference_before] * len(cases) + [reference_after], results):
         for a, b in zip(ref, fast):
             assert np.abs(a - b).max() <= 1e-5 * np.abs(a).max()  # summation order only
@@ -293,12 +295,13 @@ def test_block_p2g_matches_the_plain_atomic_kernel(device):
     assert np.allclose(results[-1][1].reshape(-1, 3).sum(0), momentum, rtol=1e-4, atol=1e-9)
 
 
-def test_solver_with_block_p2g_agrees_with_the_atomic_one(device):
+@pytest.mark.parametrize("kind", ["block", "block32"])
+def test_solver_with_block_p2g_agrees_with_the_atomic_one(device, kind):
     scene = scene_for_tests()
     p = mixed_block(scene)
     runs = []
-    for kind in ("atomic", "block"):
-        sim = MPMSolver(p, scene, device, p2g=kind, sort_every=1, sort_substeps=3)
+    for p2g in ("atomic", kind):
+        sim = MPMSolver(p, scene, device, p2g=p2g, sort_every=1, sort_substeps=3)
         for _ in range(2):
             sim.step_frame(1 / 60)
         runs.append((sim.positions(), sim.velocities()))
@@ -306,4 +309,4 @@ def test_solver_with_block_p2g_agrees_with_the_atomic_one(device):
     assert np.abs(runs[0][0] - runs[1][0]).max() < 1e-5  # m
     assert np.abs(runs[0][1] - runs[1][1]).max() < 1e-4  # m/s
     with pytest.raises(ValueError, match="sorted"):
-        MPMSolver(p, scene, device, p2g="block", sort_every=0)
+        MPMSolver(p, scene, device, p2g=kind, sort_every=0)

@@ -37,6 +37,8 @@ from .state import ARRAY_FIELDS, State
 
 CHUNK = 8  # particles per P2G thread while the particles are in no cell order (sort_every = 0)
 SORT_SUBSTEPS = 4  # with sorting on, the chunked/block P2G's cell order is refreshed every this many substeps
+BLOCK_LANES = {"block": 16, "block32": 32}  # block P2G kinds → threads per run (sim/p2g_block.py)
+RUN_P2G = ("chunked",) + tuple(BLOCK_LANES)  # P2G kinds that walk sorted runs (re-indexed inside a frame)
 SORT_MIN_PARTICLES = 50_000  # on a GPU, smaller runs fit in cache and are launch-bound: no sorting
 
 FAR = 1.0e30  # "unbounded" for regions and time windows passed to kernels
@@ -99,8 +101,8 @@ class MPMSolver:
     The Warp arrays (x, v, F, ...) are in slot order; use the accessors for the caller's order.
     `p2g`: "chunked" (one thread per run of same-cell particles sums them before touching the
     grid, kernels.p2g_chunked), "atomic" (one global atomic per particle and node, kernels.p2g, the
-    plain reference), "block" (a group of threads per run of a 2×2×2-cell block sums into a
-    4×4×4-node window, sim/p2g_block.py; needs sorting; GPU-only in spirit, opt-in until measured)
+    plain reference), "block" / "block32" (16 / 32 threads per run of a 2×2×2-cell block sum into
+    a 4×4×4-node window, sim/p2g_block.py; need sorting; meant for GPUs, opt-in until measured)
     or "auto" (chunked on a GPU when sorting, else atomic; on the CPU atomic measured faster).
     """
 
@@ -123,17 +125,17 @@ class MPMSolver:
         if sort_every is None:
             sort_every = 1 if self.device == "cpu" or self.n >= SORT_MIN_PARTICLES else 0
         self.sort_every = int(sort_every)
-        if p2g not in ("auto", "chunked", "atomic", "block"):
-            raise ValueError(f"p2g must be 'auto', 'chunked', 'atomic' or 'block', got {p2g!r}")
-        if p2g == "block" and self.sort_every == 0:
-            raise ValueError("p2g 'block' needs the particles sorted (sort_every > 0)")
+        if p2g not in ("auto", "atomic") + RUN_P2G:
+            raise ValueError(f"p2g must be 'auto', 'atomic' or one of {RUN_P2G}, got {p2g!r}")
+        if p2g in BLOCK_LANES and self.sort_every == 0:
+            raise ValueError(f"p2g {p2g!r} needs the particles sorted (sort_every > 0)")
         if p2g == "auto":
             p2g = "chunked" if self.device != "cpu" and self.sort_every > 0 else "atomic"
         self.p2g_kind = p2g
         self.sort_substeps = SORT_SUBSTEPS if sort_substeps is None else int(sort_substeps)
         if self.sort_substeps < 1:
             raise ValueError(f"sort_substeps must be >= 1, got {sort_substeps!r}")
-        self._key_shift = p2g_block.BLOCK_SHIFT if p2g == "block" else 0  # sort by cell, or by block
+        self._key_shift = p2g_block.BLOCK_SHIFT if p2g in BLOCK_LANES else 0  # sort by cell, or by block
         self.timing: dict[str, float] = {}
         self.kernel_timer = None
         self._impulse_done = [False] * len(scene.impulses)
@@ -332,9 +334,9 @@ class MPMSolver:
 
     def _set_p2g_index(self, index: wp.array, keys: wp.array) -> None:
         self._p2g_index = index
-        if self.p2g_kind in ("chunked", "block"):
+        if self.p2g_kind in RUN_P2G:
             self._p2g.set_param_by_name("index", index)
-        if self.p2g_kind == "block":  # the block P2G reads each run's block from its key
+        if self.p2g_kind in BLOCK_LANES:  # the block P2G reads each run's block from its key
             self._run_keys = keys
             self._p2g.set_param_by_name("keys", keys)
 
@@ -461,7 +463,7 @@ class MPMSolver:
         self.grid_momentum.zero_()
         self.grid_fixed.zero_()
         for s in range(n_sub):
-            if self.sort_every > 0 and self.p2g_kind in ("chunked", "block") and s > 0 and s % self.sort_substeps == 0:
+            if self.sort_every > 0 and self.p2g_kind in RUN_P2G and s > 0 and s % self.sort_substeps == 0:
                 self._reindex()  # all on the device: the launches queue behind the substeps
                 if self.kernel_timer is not None:
                     self.kernel_timer.mark("sort")
@@ -513,10 +515,11 @@ class MPMSolver:
             self._p2g = wp.launch(kernels.p2g_chunked, dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + [self.run_start, self.run_count, self._p2g_index]
                                   + grid_outputs)
-        elif self.p2g_kind == "block":
+        elif self.p2g_kind in BLOCK_LANES:
+            lanes = BLOCK_LANES[self.p2g_kind]
             kd = key_dims(self.dims, p2g_block.BLOCK_SHIFT)
             groups = p2g_block.group_count(self.n, kd[0] * kd[1] * kd[2], MAX_RUN)
-            self._p2g = wp.launch(p2g_block.p2g_blocks, dim=groups * p2g_block.LANES, device=d, record_cmd=True,
+            self._p2g = wp.launch(p2g_block.block_kernel(lanes), dim=groups * lanes, device=d, record_cmd=True,
                                   inputs=particle_inputs + [self.run_start, self.run_count, self._p2g_index,
                                                             self._run_keys, groups] + grid_outputs)
         else:
