@@ -121,7 +121,7 @@ class KernelTimer:
 
 
 def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str = "lattice",
-              p2g: str = "auto", sort_substeps: int | None = None, frames: int = 1) -> dict:
+              p2g: str = "auto", sort_substeps: int | None = None, frames: int = 1, resort: str = "start") -> dict:
     import warp as wp
 
     from pixie_gs.sim.solver import MPMSolver
@@ -129,7 +129,8 @@ def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str
     particles, scene = block_problem(n_target, shuffle=order != "lattice")
     n = len(particles)
     sort = {} if order == "sorted" else {"sort_every": 0}  # sorted: the solver's default (every frame)
-    solver = MPMSolver(particles, scene, device, p2g=p2g, sort_substeps=sort_substeps, **sort)
+    solver = MPMSolver(particles, scene, device, p2g=p2g, sort_substeps=sort_substeps,
+                       resort_inside=resort == "inside", **sort)
     dt = float(solver.dt)
     # step_frame(k·dt) runs k substeps of the CFL dt (the solver's own counter says how many)
     solver.step_frame(warmup * dt * (1 - 1e-6))
@@ -166,7 +167,8 @@ def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str
     pp, total = warp_arrays_bytes(solver, n)
     return {"n": n, "order": order, "p2g": solver.p2g_kind, "seconds": seconds, "cpu_seconds": cpu_seconds, "substeps": substeps,
             "rate": float(np.mean(frame_rates)), "frame_rates": frame_rates,
-            "sort_substeps": solver.sort_substeps if solver.sort_every > 0 and solver.p2g_kind != "atomic" else None, "bytes_particle_state": pp / n, "bytes_all_per_particle": total / n,
+            "sort_substeps": solver.sort_substeps if solver.sort_every > 0 and solver.p2g_kind != "atomic" else None,
+            "resort": resort if solver.sort_every > 0 and solver.p2g_kind != "atomic" else "", "bytes_particle_state": pp / n, "bytes_all_per_particle": total / n,
             "dt": dt, "host": host, "kernels": kernels, "reduction_s": reduction_s, "sort_s": sort_s}
 
 
@@ -258,6 +260,9 @@ def main() -> None:
     parser.add_argument("--sort-substeps", type=int, nargs="+", default=[0],
                         help="in-frame index re-sort interval(s) in substeps for the sorted order "
                              "(0: the solver's default)")
+    parser.add_argument("--resort", nargs="+", default=["start"], choices=["start", "inside"],
+                        help="sorted order, chunked/block P2G: the frame's array re-sort at the frame start (the "
+                             "solver's default) or inside the frame in place of an index sort (resort_inside)")
     parser.add_argument("--frames", type=int, default=1,
                         help="timed frames of --substeps each, one after the other (each printed, mean reported)")
     args = parser.parse_args()
@@ -279,23 +284,25 @@ def main() -> None:
     results = []
 
     def label(r: dict) -> str:
-        return f"P2G {r['p2g']}" + (f" re-sort/{r['sort_substeps']}" if r["sort_substeps"] else "")
+        return f"P2G {r['p2g']}" + (f" re-sort/{r['sort_substeps']}" if r["sort_substeps"] else "") + \
+            (" array sort inside" if r["resort"] == "inside" else "")
 
     for n in args.sizes:
-        for order, p2g, k_sort in [(o, k, s) for o in args.order for k in args.p2g for s in args.sort_substeps]:
+        for order, p2g, k_sort, resort in [(o, k, s, r) for o in args.order for k in args.p2g
+                                           for s in args.sort_substeps for r in args.resort]:
             if p2g.startswith("block") and order != "sorted":
                 continue  # the block P2G needs the solver's sorting
             resorts = order == "sorted" and (p2g in RUN_P2G or (p2g == "auto" and device != "cpu"))
-            if k_sort != args.sort_substeps[0] and not resorts:
+            if (k_sort != args.sort_substeps[0] or resort != args.resort[0]) and not resorts:
                 continue  # no in-frame re-sort to vary
-            r = time_warp(n, device, args.warmup, substeps, order, p2g, k_sort or None, args.frames)
+            r = time_warp(n, device, args.warmup, substeps, order, p2g, k_sort or None, args.frames, resort)
             results.append(r)
             cpu_rate = f" [{r['n'] * r['substeps'] / r['cpu_seconds'] / 1e6:.3f} M per process-CPU s]" \
                 if device == "cpu" and r["cpu_seconds"] > 0 else ""
-            resort = f" re-sort/{r['sort_substeps']}" if r["sort_substeps"] else ""
+            extra = label(r)[4 + len(r["p2g"]):]
             frames = "" if len(r["frame_rates"]) < 2 else \
                 " (frames: " + " / ".join(f"{x / 1e6:.4g}" for x in r["frame_rates"]) + ", mean)"
-            print(f"warp {device:<6} {r['n']:>9} particles {order:<7} P2G {r['p2g']:<7}{resort} "
+            print(f"warp {device:<6} {r['n']:>9} particles {order:<7} P2G {r['p2g']:<7}{extra} "
                   f"{r['rate'] / 1e6:10.3f} M particle-substeps/s{frames}"
                   f"{cpu_rate} ({r['substeps']} substeps in one step_frame, {r['seconds']:.3f} s wall, "
                   f"{r['cpu_seconds']:.2f} s process CPU, dt {r['dt']:.2e} s)  "
@@ -304,7 +311,8 @@ def main() -> None:
             k, h = r["kernels"], r["host"]
             per_sub = sum(k.values())
             print(f"    per substep (device): P2G {k.get('p2g', 0) * 1e3:.3f} ms, grid {k.get('grid', 0) * 1e3:.3f} ms, "
-                  f"G2P {k.get('g2p', 0) * 1e3:.3f} ms, in-frame index sort {k.get('sort', 0) * 1e3:.3f} ms "
+                  f"G2P {k.get('g2p', 0) * 1e3:.3f} ms, in-frame index sort {k.get('sort', 0) * 1e3:.3f} ms, "
+                  f"in-frame array sort {k.get('resort', 0) * 1e3:.3f} ms "
                   f"= {per_sub * 1e3:.3f} ms "
                   f"(kernels alone: {r['n'] / per_sub / 1e6:.1f} M particle-substeps/s)")
             print(f"    timed frame, host seconds: re-sort {h['sort_s']:.4f}, CFL reduction {h['stats_s']:.4f}, "
@@ -327,8 +335,7 @@ def main() -> None:
         for r in results:
             if r["order"] != "lattice" and r["n"] >= 900_000:
                 goal = 2500e6 if r["n"] < 2_000_000 else 2400e6
-                resort = f" re-sort/{r['sort_substeps']}" if r["sort_substeps"] else ""
-                print(f"issue 14 goal >= {goal / 1e6:.0f} M particle-substeps/s, {r['order']} input order, P2G {r['p2g']}{resort}, "
+                print(f"issue 14 goal >= {goal / 1e6:.0f} M particle-substeps/s, {r['order']} input order, {label(r)}, "
                       f"{r['n']} particles: {'MET' if r['rate'] >= goal else 'NOT MET'} ({r['rate'] / 1e6:.1f} M)")
 
 

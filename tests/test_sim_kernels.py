@@ -295,10 +295,19 @@ def test_block_p2g_matches_the_plain_atomic_kernel(device, lanes):
     assert np.allclose(results[-1][1].reshape(-1, 3).sum(0), momentum, rtol=1e-4, atol=1e-9)
 
 
+def moving_block(scene: Scene) -> Particles:
+    """mixed_block with nothing held (its held particles pin nearly every node) sliding at
+    ~0.6 cells per frame in x: particles leave their cells and blocks within a frame."""
+    import dataclasses
+
+    p = mixed_block(scene)
+    return dataclasses.replace(p, v=p.v + np.array([0.6, 0.0, 0.0]), fixed=np.zeros(len(p.x), bool))
+
+
 @pytest.mark.parametrize("kind", ["block", "block32"])
 def test_solver_with_block_p2g_agrees_with_the_atomic_one(device, kind):
     scene = scene_for_tests()
-    p = mixed_block(scene)
+    p = moving_block(scene)
     runs = []
     for p2g in ("atomic", kind):
         sim = MPMSolver(p, scene, device, p2g=p2g, sort_every=1, sort_substeps=3)
@@ -306,7 +315,43 @@ def test_solver_with_block_p2g_agrees_with_the_atomic_one(device, kind):
             sim.step_frame(1 / 60)
         runs.append((sim.positions(), sim.velocities()))
     assert sim.substeps_last_frame > 6  # the in-frame index re-sorts ran
+    assert np.abs(runs[1][0] - p.x).max() > scene.dx  # it moved across cells
     assert np.abs(runs[0][0] - runs[1][0]).max() < 1e-5  # m
     assert np.abs(runs[0][1] - runs[1][1]).max() < 1e-4  # m/s
     with pytest.raises(ValueError, match="sorted"):
         MPMSolver(p, scene, device, p2g=kind, sort_every=0)
+
+
+class MarkRecorder:
+    """solver.kernel_timer that only records the names marked (which kernels/sorts ran)."""
+
+    def __init__(self) -> None:
+        self.names: list[str] = []
+
+    def mark(self, name: str) -> None:
+        self.names.append(name)
+
+
+@pytest.mark.parametrize("kind", ["chunked", "block"])
+def test_resort_inside_the_frame_agrees_and_keeps_the_order_map(device, kind):
+    from pixie_gs.sim import solver as solver_module
+
+    scene = scene_for_tests()
+    p = moving_block(scene)
+    reference = MPMSolver(p, scene, device, p2g="atomic", sort_every=1)
+    sim = MPMSolver(p, scene, device, p2g=kind, sort_every=1, sort_substeps=5, resort_inside=True)
+    recorder = MarkRecorder()
+    for frame in range(3):
+        order_before = sim.order.numpy().copy()
+        sim.kernel_timer = recorder if frame == 1 else None
+        for s in (reference, sim):
+            s.step_frame(1 / 60)
+        assert sim.substeps_last_frame > solver_module.RESORT_SUBSTEP
+        if frame == 1:  # frames after the first re-sort inside, at the first index sort from substep 16 on
+            marks = [m for m in recorder.names if m in ("sort", "resort")]
+            assert marks == ["sort"] * 3 + ["resort"] + ["sort"] * (len(marks) - 4)
+            assert not np.array_equal(sim.order.numpy(), order_before)  # particles changed cells: new order
+        assert np.abs(reference.positions() - sim.positions()).max() < 1e-5  # m, in the caller's order
+        assert np.abs(reference.velocities() - sim.velocities()).max() < 1e-4  # m/s
+    # the arrays were left in cell (block) order by the last re-sort, as far as particles moved since
+    assert np.array_equal(sim.material.numpy(), p.material_id[sim.order.numpy()])

@@ -39,6 +39,7 @@ CHUNK = 8  # particles per P2G thread while the particles are in no cell order (
 SORT_SUBSTEPS = 4  # with sorting on, the chunked/block P2G's cell order is refreshed every this many substeps
 BLOCK_LANES = {"block": 16, "block32": 32}  # block P2G kinds → threads per run (sim/p2g_block.py)
 RUN_P2G = ("chunked",) + tuple(BLOCK_LANES)  # P2G kinds that walk sorted runs (re-indexed inside a frame)
+RESORT_SUBSTEP = 16  # resort_inside: the frame's array re-sort goes in at the first index sort from this substep
 SORT_MIN_PARTICLES = 50_000  # on a GPU, smaller runs fit in cache and are launch-bound: no sorting
 
 FAR = 1.0e30  # "unbounded" for regions and time windows passed to kernels
@@ -97,7 +98,9 @@ class MPMSolver:
     `sort_every`: re-sort the particle arrays into cell order every this many frames (0: keep
     the caller's order, never sort; None: every frame, except on a GPU below SORT_MIN_PARTICLES); inside a frame the chunked P2G gets a fresh cell order (an
     index, the arrays stay put) every `sort_substeps` substeps (None: SORT_SUBSTEPS). Sorted and
-    unsorted runs agree to float rounding.
+    unsorted runs agree to float rounding. `resort_inside`: with a chunked/block P2G, a frame's
+    re-sort of the arrays replaces its first in-frame index sort from substep RESORT_SUBSTEP on,
+    instead of running at the frame start, where the device waits while the host issues it.
     The Warp arrays (x, v, F, ...) are in slot order; use the accessors for the caller's order.
     `p2g`: "chunked" (one thread per run of same-cell particles sums them before touching the
     grid, kernels.p2g_chunked), "atomic" (one global atomic per particle and node, kernels.p2g, the
@@ -107,7 +110,7 @@ class MPMSolver:
     """
 
     def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int | None = None,
-                 p2g: str = "auto", sort_substeps: int | None = None) -> None:
+                 p2g: str = "auto", sort_substeps: int | None = None, resort_inside: bool = False) -> None:
         particles.validate()
         self.scene = scene
         self.device = resolve_warp_device(device)
@@ -135,6 +138,7 @@ class MPMSolver:
         self.sort_substeps = SORT_SUBSTEPS if sort_substeps is None else int(sort_substeps)
         if self.sort_substeps < 1:
             raise ValueError(f"sort_substeps must be >= 1, got {sort_substeps!r}")
+        self.resort_inside = bool(resort_inside)
         self._key_shift = p2g_block.BLOCK_SHIFT if p2g in BLOCK_LANES else 0  # sort by cell, or by block
         self.timing: dict[str, float] = {}
         self.kernel_timer = None
@@ -452,10 +456,14 @@ class MPMSolver:
             raise InputError(f"frame duration must be a positive number of seconds, got {frame_dt_s}")
         clock = time.perf_counter
         t_start = clock()
-        if self.sort_every > 0 and self.frame > 0 and self.frame % self.sort_every == 0:
+        resort_due = self.sort_every > 0 and self.frame > 0 and self.frame % self.sort_every == 0
+        if resort_due and not self.resort_inside:
             self._resort()
         t_sorted = clock()
         n_sub = self.substeps_for(frame_dt_s)
+        resort_at = self._inside_resort_substep(n_sub) if resort_due and self.resort_inside else -1
+        if resort_due and self.resort_inside and resort_at < 0:
+            self._resort()
         t_stats = clock()
         dt = frame_dt_s / n_sub
         t0 = self.time_s
@@ -463,7 +471,11 @@ class MPMSolver:
         self.grid_momentum.zero_()
         self.grid_fixed.zero_()
         for s in range(n_sub):
-            if self.sort_every > 0 and self.p2g_kind in RUN_P2G and s > 0 and s % self.sort_substeps == 0:
+            if s == resort_at:  # the frame's full re-sort, issued while the device is busy
+                self._resort()
+                if self.kernel_timer is not None:
+                    self.kernel_timer.mark("resort")
+            elif self.sort_every > 0 and self.p2g_kind in RUN_P2G and s > 0 and s % self.sort_substeps == 0:
                 self._reindex()  # all on the device: the launches queue behind the substeps
                 if self.kernel_timer is not None:
                     self.kernel_timer.mark("sort")
@@ -479,6 +491,16 @@ class MPMSolver:
         self._guard(dt)
         self.timing = {"sort_s": t_sorted - t_start, "stats_s": t_stats - t_sorted,
                        "launch_s": t_launched - t_stats, "guard_s": clock() - t_launched}
+
+    def _inside_resort_substep(self, n_sub: int) -> int:
+        """Substep before which `resort_inside` re-sorts the arrays: the first in-frame index sort
+        at or after RESORT_SUBSTEP (by then the host, issuing launches faster than the device runs
+        them, is far enough ahead that issuing the ~50 launches of a re-sort leaves the device no
+        gap); -1: at the frame start (no in-frame index sorts, or too few substeps)."""
+        if self.p2g_kind not in RUN_P2G:
+            return -1
+        at = -(-RESORT_SUBSTEP // self.sort_substeps) * self.sort_substeps
+        return at if at < n_sub else -1
 
     def _apply_impulses(self, t_end: float) -> None:
         for i, imp in enumerate(self.scene.impulses):
