@@ -355,3 +355,32 @@ def test_resort_inside_the_frame_agrees_and_keeps_the_order_map(device, kind):
         assert np.abs(reference.velocities() - sim.velocities()).max() < 1e-4  # m/s
     # the arrays were left in cell (block) order by the last re-sort, as far as particles moved since
     assert np.array_equal(sim.material.numpy(), p.material_id[sim.order.numpy()])
+
+
+def test_register_capped_g2p_matches_g2p(device):
+    import warp as wp
+
+    from pixie_gs.sim import kernels
+    from pixie_gs.sim.state import ARRAY_FIELDS
+
+    scene = scene_for_tests()
+    sim = MPMSolver(mixed_block(scene), scene, device, sort_every=0)  # jelly, metal, snow; some held
+    rng = np.random.default_rng(4)
+    sim.F.assign((np.eye(3) + rng.normal(0.0, 0.1, (sim.n, 3, 3))).astype(np.float32))
+    grid_v = wp.array(rng.normal(0.0, 0.5, (*sim.dims, 3)).astype(np.float32), dtype=wp.vec3, device=device)
+    capped = kernels.g2p_kernel(64)
+    assert kernels.g2p_kernel(None) is kernels.g2p and kernels.g2p_kernel(64) is capped
+    outs = []
+    for kernel in (kernels.g2p, capped):
+        st = sim.state.clone()
+        wp.launch(kernel, dim=sim.n, device=device,
+                  inputs=[st.x, st.v, st.C, st.F, sim.mu, sim.lam, sim.yield_stress, sim.material, st.Jp,
+                          sim.fixed_flag, sim.grid_info, sim.material_params, 1e-3, grid_v, st.stress])
+        outs.append(st.numpy())
+    before = sim.state.numpy()
+    assert np.abs(outs[0]["x"] - before["x"]).max() > 1e-5  # it moved the particles
+    assert np.abs(outs[0]["stress"]).max() > 1.0  # and stressed them (Pa)
+    for name in ARRAY_FIELDS:  # the same code: only register allocation differs on a GPU
+        a, b = outs[0][name], outs[1][name]
+        assert np.abs(a - b).max() <= 1e-6 * max(1.0, np.abs(a).max()), name
+    assert MPMSolver(mixed_block(scene), scene, device, sort_every=0, g2p_max_registers=64)._g2p.kernel is capped

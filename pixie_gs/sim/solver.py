@@ -101,6 +101,8 @@ class MPMSolver:
     unsorted runs agree to float rounding. `resort_inside`: with a chunked/block P2G, a frame's
     re-sort of the arrays replaces its first in-frame index sort from substep RESORT_SUBSTEP on,
     instead of running at the frame start, where the device waits while the host issues it.
+    `g2p_max_registers`: compile G2P with at most this many registers per CUDA thread
+    (kernels.g2p_kernel; None: the compiler's choice).
     The Warp arrays (x, v, F, ...) are in slot order; use the accessors for the caller's order.
     `p2g`: "chunked" (one thread per run of same-cell particles sums them before touching the
     grid, kernels.p2g_chunked), "atomic" (one global atomic per particle and node, kernels.p2g, the
@@ -110,7 +112,8 @@ class MPMSolver:
     """
 
     def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int | None = None,
-                 p2g: str = "auto", sort_substeps: int | None = None, resort_inside: bool = False) -> None:
+                 p2g: str = "auto", sort_substeps: int | None = None, resort_inside: bool = False,
+                 g2p_max_registers: int | None = None) -> None:
         particles.validate()
         self.scene = scene
         self.device = resolve_warp_device(device)
@@ -139,6 +142,7 @@ class MPMSolver:
         if self.sort_substeps < 1:
             raise ValueError(f"sort_substeps must be >= 1, got {sort_substeps!r}")
         self.resort_inside = bool(resort_inside)
+        self.g2p_max_registers = g2p_max_registers
         self._key_shift = p2g_block.BLOCK_SHIFT if p2g in BLOCK_LANES else 0  # sort by cell, or by block
         self.timing: dict[str, float] = {}
         self.kernel_timer = None
@@ -554,7 +558,7 @@ class MPMSolver:
                     self.wind_timing, len(sc.wind), sc.damping, sc.air_drag, int(sc.ground.enabled),
                     sc.ground.height_m, sc.ground.friction, int(sc.walls == "sticky"), BOUNDARY_CELLS])
         self._g2p = wp.launch(
-            kernels.g2p, dim=self.n, device=d, record_cmd=True,
+            kernels.g2p_kernel(self.g2p_max_registers), dim=self.n, device=d, record_cmd=True,
             inputs=[self.x, self.v, self.C, self.F, self.mu, self.lam, self.yield_stress, self.material,
                     self.Jp, self.fixed_flag, self.grid_info, self.material_params, 0.0, self.grid_velocity,
                     self.stress])
