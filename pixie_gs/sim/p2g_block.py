@@ -24,6 +24,8 @@ from .kernels import GridInfo, bspline_weights, mls_affine, stencil_of
 LANE_CHOICES = (16, 32)  # threads per run (block_kernel)
 BLOCK_SHIFT = 1  # sort key: base cell >> 1 per axis (blocks of 2×2×2 cells, a 4×4×4-node window)
 MAX_GROUPS = 32768  # thread groups launched; each takes runs g, g + groups, ... (grid-stride)
+BLOCK_DIM = 128  # CUDA threads per block: at 96 registers (16 lanes) 5 blocks of 128 fit an SM (20
+# warps) where 2 of 256 do (16); at 64 registers (32 lanes) 32 warps either way; no shared memory used
 _KERNELS: dict[int, wp.Kernel] = {}  # lanes → compiled kernel
 
 

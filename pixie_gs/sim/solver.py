@@ -546,6 +546,7 @@ class MPMSolver:
             kd = key_dims(self.dims, p2g_block.BLOCK_SHIFT)
             groups = p2g_block.group_count(self.n, kd[0] * kd[1] * kd[2], MAX_RUN)
             self._p2g = wp.launch(p2g_block.block_kernel(lanes), dim=groups * lanes, device=d, record_cmd=True,
+                                  block_dim=p2g_block.BLOCK_DIM,
                                   inputs=particle_inputs + [self.run_start, self.run_count, self._p2g_index,
                                                             self._run_keys, groups] + grid_outputs)
         else:
