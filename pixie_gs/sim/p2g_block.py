@@ -1,9 +1,9 @@
 """Block P2G: a group of 16 or 32 threads scatters one run of particles of a 2×2×2-cell block.
 
-Why: the chunked P2G (kernels.p2g_chunked) gives one thread one cell run. Its neighbouring
-threads read particles a run apart (uncoalesced), every node still takes one atomic per
-touching cell (27 per node), and a particle that drifted out of its cell since the last sort
-flushes the thread's 27-node sums. Here the particles are sorted by block of 2×2×2 base cells
+Why: the chunked P2G (kernels.p2g_chunked) gives one thread one cell run: its 27×4 sums take
+255 registers (8 resident warps per SM on sm_90, scripts/sim_kernel_registers.py), neighbouring
+threads read particles a run apart, every node still takes one atomic per touching cell (27 per
+node), and a particle that drifted out of its cell since the last sort flushes the sums. Here the particles are sorted by block of 2×2×2 base cells
 (sort.cell_order with shift 1), whose stencils span a 4×4×4-node window. A group of 16 (or 32)
 threads walks one run of the block's particles together (all read the same particle: one
 broadcast load), each thread owning 4 (or 2) nodes of the window in registers; at the end of the
