@@ -326,7 +326,8 @@ class MPMSolver:
                 self.wave_c, self.yield_stress, self.material, self.Jp, self.fixed_flag, self.order]
 
     def _resort(self) -> None:
-        """Put the particle arrays into grid-cell order (on the device; order follows)."""
+        """Put the particle arrays into grid-cell order (block order for the block P2G; on the
+        device; order follows)."""
         perm, keys = cell_order(self.x, self.grid_info, self._key_shift)
         permute_in_place(perm, self._particle_arrays())
         self._order_host = None
@@ -334,8 +335,8 @@ class MPMSolver:
         self._set_p2g_index(self._identity, keys)
 
     def _reindex(self) -> None:
-        """A fresh cell order for the chunked P2G only: sort an index, not the arrays (cheap, all
-        on the device: done every SORT_SUBSTEPS substeps as particles drift between cells)."""
+        """A fresh cell (block) order for the chunked/block P2G only: sort an index, not the arrays
+        (cheap, all on the device: done every sort_substeps substeps as particles drift)."""
         perm, keys = cell_order(self.x, self.grid_info, self._key_shift)
         cell_runs(keys, self.run_start, self.run_count)
         self._set_p2g_index(perm, keys)
@@ -499,7 +500,7 @@ class MPMSolver:
     def _inside_resort_substep(self, n_sub: int) -> int:
         """Substep before which `resort_inside` re-sorts the arrays: the first in-frame index sort
         at or after RESORT_SUBSTEP (by then the host, issuing launches faster than the device runs
-        them, is far enough ahead that issuing the ~50 launches of a re-sort leaves the device no
+        them, is far enough ahead that issuing the ~40 launches of a re-sort leaves the device no
         gap); -1: at the frame start (no in-frame index sorts, or too few substeps)."""
         if self.p2g_kind not in RUN_P2G:
             return -1
