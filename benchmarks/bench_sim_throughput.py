@@ -71,8 +71,11 @@ def warp_arrays_bytes(solver, n: int) -> tuple[int, int]:
 
     seen: set[int] = set()
     per_particle = total = 0
+    from pixie_gs.sim.state import State
+
     for value in vars(solver).values():
-        values = value.values() if isinstance(value, dict) else value if isinstance(value, (list, tuple)) else [value]
+        values = value.values() if isinstance(value, dict) else value if isinstance(value, (list, tuple)) \
+            else value.arrays() if isinstance(value, State) else [value]
         for arr in values:
             if isinstance(arr, wp.array) and id(arr) not in seen:
                 seen.add(id(arr))
@@ -118,7 +121,8 @@ class KernelTimer:
 
 
 def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str = "lattice",
-              p2g: str = "auto") -> dict:
+              p2g: str = "auto", sort_substeps: int | None = None, frames: int = 1, resort: str = "start",
+              g2p_registers: int | None = None) -> dict:
     import warp as wp
 
     from pixie_gs.sim.solver import MPMSolver
@@ -126,16 +130,20 @@ def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str
     particles, scene = block_problem(n_target, shuffle=order != "lattice")
     n = len(particles)
     sort = {} if order == "sorted" else {"sort_every": 0}  # sorted: the solver's default (every frame)
-    solver = MPMSolver(particles, scene, device, p2g=p2g, **sort)
+    solver = MPMSolver(particles, scene, device, p2g=p2g, sort_substeps=sort_substeps,
+                       resort_inside=resort == "inside", g2p_max_registers=g2p_registers, **sort)
     dt = float(solver.dt)
     # step_frame(k·dt) runs k substeps of the CFL dt (the solver's own counter says how many)
     solver.step_frame(warmup * dt * (1 - 1e-6))
     wp.synchronize_device(device)
-    done = solver.particle_substeps
-    t0, c0 = time.perf_counter(), time.process_time()
-    solver.step_frame(substeps * dt * (1 - 1e-6))
-    wp.synchronize_device(device)
-    seconds, cpu_seconds = time.perf_counter() - t0, time.process_time() - c0
+    frame_rates = []  # each timed frame alone: the same frames for every variant (same physics)
+    for _ in range(frames):
+        done = solver.particle_substeps
+        t0, c0 = time.perf_counter(), time.process_time()
+        solver.step_frame(substeps * dt * (1 - 1e-6))
+        wp.synchronize_device(device)
+        seconds, cpu_seconds = time.perf_counter() - t0, time.process_time() - c0
+        frame_rates.append((solver.particle_substeps - done) / seconds)
     substeps = (solver.particle_substeps - done) // n
     host = dict(solver.timing)
     # the instrumented frame: per-kernel device time
@@ -159,7 +167,10 @@ def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str
     assert np.isfinite(x).all(), "block diverged"
     pp, total = warp_arrays_bytes(solver, n)
     return {"n": n, "order": order, "p2g": solver.p2g_kind, "seconds": seconds, "cpu_seconds": cpu_seconds, "substeps": substeps,
-            "rate": n * substeps / seconds, "bytes_particle_state": pp / n, "bytes_all_per_particle": total / n,
+            "rate": float(np.mean(frame_rates)), "frame_rates": frame_rates,
+            "sort_substeps": solver.sort_substeps if solver.sort_every > 0 and solver.p2g_kind != "atomic" else None,
+            "resort": resort if solver.sort_every > 0 and solver.p2g_kind != "atomic" else "",
+            "g2p_registers": g2p_registers, "bytes_particle_state": pp / n, "bytes_all_per_particle": total / n,
             "dt": dt, "host": host, "kernels": kernels, "reduction_s": reduction_s, "sort_s": sort_s}
 
 
@@ -234,6 +245,25 @@ def time_numpy(n_target: int, substeps: int) -> dict:
             "rate": n * substeps / seconds}
 
 
+def parse_variant(text: str) -> tuple[str, int, str, int | None]:
+    """'KIND[,sort=K][,inside][,g2p=R]' → (P2G kind, re-sort interval (0: default), "start" or
+    "inside", G2P register cap or None)."""
+    kind, *opts = text.split(",")
+    k_sort, resort, regs = 0, "start", None
+    for opt in opts:
+        if opt == "inside":
+            resort = "inside"
+        elif opt.startswith("sort="):
+            k_sort = int(opt[5:])
+        elif opt.startswith("g2p="):
+            regs = int(opt[4:])
+        else:
+            raise SystemExit(f"--variant {text!r}: unknown option {opt!r}")
+    if kind not in ("auto", "chunked", "atomic", "block", "block32"):
+        raise SystemExit(f"--variant {text!r}: unknown P2G kind {kind!r}")
+    return kind, k_sort, resort, regs
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
@@ -244,12 +274,27 @@ def main() -> None:
     parser.add_argument("--baseline-substeps", type=int, default=3)
     parser.add_argument("--order", nargs="+", default=["random", "sorted"], choices=["lattice", "random", "sorted"],
                         help="particle order(s) to time (see above)")
-    parser.add_argument("--p2g", nargs="+", default=["auto"], choices=["auto", "chunked", "atomic"],
+    parser.add_argument("--p2g", nargs="+", default=["auto"], choices=["auto", "chunked", "atomic", "block", "block32"],
                         help="P2G kernel(s): chunked (one thread per same-cell run), atomic (the plain one), "
+                             "block / block32 (16 / 32 threads per run of a 2x2x2-cell block, sorted order only), "
                              "auto (solver default: chunked on a GPU, atomic on the CPU)")
+    parser.add_argument("--sort-substeps", type=int, nargs="+", default=[0],
+                        help="in-frame index re-sort interval(s) in substeps for the sorted order "
+                             "(0: the solver's default)")
+    parser.add_argument("--resort", nargs="+", default=["start"], choices=["start", "inside"],
+                        help="sorted order, chunked/block P2G: the frame's array re-sort at the frame start (the "
+                             "solver's default) or inside the frame in place of an index sort (resort_inside)")
+    parser.add_argument("--variant", action="append", default=[], metavar="KIND[,sort=K][,inside][,g2p=R]",
+                        help="a sorted-order variant (repeatable; replaces the --p2g x --sort-substeps x "
+                             "--resort product for the sorted order): P2G kind, in-frame index re-sort "
+                             "interval K, array re-sort inside the frame, G2P compiled with at most R "
+                             "registers per CUDA thread; e.g. block,sort=16,inside,g2p=64")
+    parser.add_argument("--frames", type=int, default=1,
+                        help="timed frames of --substeps each, one after the other (each printed, mean reported)")
     args = parser.parse_args()
 
     from pixie_gs.devices import resolve_warp_device
+    from pixie_gs.sim.solver import RUN_P2G
 
     device = resolve_warp_device(args.device)
     substeps = args.substeps or (200 if device.startswith("cuda") else 20)
@@ -263,13 +308,32 @@ def main() -> None:
           f"[{base['n'] * base['substeps'] / base['cpu_seconds'] / 1e6:.3f} M per process-CPU s] "
           f"({base['substeps']} substeps in {base['seconds']:.2f} s wall, {base['cpu_seconds']:.2f} s process CPU)")
     results = []
+
+    def label(r: dict) -> str:
+        return f"P2G {r['p2g']}" + (f" re-sort/{r['sort_substeps']}" if r["sort_substeps"] else "") + \
+            (" array sort inside" if r["resort"] == "inside" else "") + \
+            (f" G2P {r['g2p_registers']} regs" if r["g2p_registers"] else "")
+
     for n in args.sizes:
-        for order, p2g in [(o, k) for o in args.order for k in args.p2g]:
-            r = time_warp(n, device, args.warmup, substeps, order, p2g)
+        runs = [(o, k, s, r, None) for o in args.order for k in args.p2g for s in args.sort_substeps for r in args.resort
+                if not (args.variant and o == "sorted")]
+        runs += [("sorted", *parse_variant(v)) for v in args.variant if "sorted" in args.order]
+        for order, p2g, k_sort, resort, g2p_registers in runs:
+            if p2g.startswith("block") and order != "sorted":
+                continue  # the block P2G needs the solver's sorting
+            resorts = order == "sorted" and (p2g in RUN_P2G or (p2g == "auto" and device != "cpu"))
+            if (k_sort != args.sort_substeps[0] or resort != args.resort[0]) and not resorts and g2p_registers is None:
+                continue  # no in-frame re-sort to vary
+            r = time_warp(n, device, args.warmup, substeps, order, p2g, k_sort or None, args.frames, resort,
+                          g2p_registers)
             results.append(r)
             cpu_rate = f" [{r['n'] * r['substeps'] / r['cpu_seconds'] / 1e6:.3f} M per process-CPU s]" \
                 if device == "cpu" and r["cpu_seconds"] > 0 else ""
-            print(f"warp {device:<6} {r['n']:>9} particles {order:<7} P2G {r['p2g']:<6} {r['rate'] / 1e6:10.3f} M particle-substeps/s"
+            extra = label(r)[4 + len(r["p2g"]):]
+            frames = "" if len(r["frame_rates"]) < 2 else \
+                " (frames: " + " / ".join(f"{x / 1e6:.4g}" for x in r["frame_rates"]) + ", mean)"
+            print(f"warp {device:<6} {r['n']:>9} particles {order:<7} P2G {r['p2g']:<7}{extra} "
+                  f"{r['rate'] / 1e6:10.3f} M particle-substeps/s{frames}"
                   f"{cpu_rate} ({r['substeps']} substeps in one step_frame, {r['seconds']:.3f} s wall, "
                   f"{r['cpu_seconds']:.2f} s process CPU, dt {r['dt']:.2e} s)  "
                   f"memory {r['bytes_particle_state']:.0f} B/particle state, {r['bytes_all_per_particle']:.0f} B/particle "
@@ -277,22 +341,31 @@ def main() -> None:
             k, h = r["kernels"], r["host"]
             per_sub = sum(k.values())
             print(f"    per substep (device): P2G {k.get('p2g', 0) * 1e3:.3f} ms, grid {k.get('grid', 0) * 1e3:.3f} ms, "
-                  f"G2P {k.get('g2p', 0) * 1e3:.3f} ms = {per_sub * 1e3:.3f} ms "
+                  f"G2P {k.get('g2p', 0) * 1e3:.3f} ms, in-frame index sort {k.get('sort', 0) * 1e3:.3f} ms, "
+                  f"in-frame array sort {k.get('resort', 0) * 1e3:.3f} ms "
+                  f"= {per_sub * 1e3:.3f} ms "
                   f"(kernels alone: {r['n'] / per_sub / 1e6:.1f} M particle-substeps/s)")
             print(f"    timed frame, host seconds: re-sort {h['sort_s']:.4f}, CFL reduction {h['stats_s']:.4f}, "
                   f"issuing {r['substeps']} substeps {h['launch_s']:.4f}, guard incl. waiting for the device "
                   f"{h['guard_s']:.4f}; one reduction {r['reduction_s'] * 1e3:.3f} ms, one re-sort "
                   f"{r['sort_s'] * 1e3:.2f} ms (peak +{2 * 8 + 36} B/particle while sorting)")
     for order in args.order:
-        rows = [r for r in results if r["order"] == order and r["p2g"] == results[0]["p2g"]]
+        rows = [r for r in results if r["order"] == order and r["p2g"] == results[0]["p2g"]
+                and r["sort_substeps"] == results[0]["sort_substeps"]]
         if len(rows) >= 2:
             a, b = rows[0], rows[-1]
             print(f"scaling {a['n']} -> {b['n']} particles ({order}): throughput ratio {b['rate'] / a['rate']:.2f}")
+    for n in sorted({r["n"] for r in results}):  # variants against the solver's default, same run
+        same = [r for r in results if r["n"] == n and r["order"] == "sorted"]
+        base_rows = [r for r in same if r["p2g"] == same[0]["p2g"] and r["sort_substeps"] == same[0]["sort_substeps"]]
+        for r in same[1:] if base_rows else []:
+            print(f"variant vs baseline ({n} particles, sorted): {label(r)} {r['rate'] / 1e6:.4g} M / "
+                  f"{label(same[0])} {same[0]['rate'] / 1e6:.4g} M = {r['rate'] / same[0]['rate']:.3f}")
     if device.startswith("cuda"):
         for r in results:
             if r["order"] != "lattice" and r["n"] >= 900_000:
                 goal = 2500e6 if r["n"] < 2_000_000 else 2400e6
-                print(f"issue 14 goal >= {goal / 1e6:.0f} M particle-substeps/s, {r['order']} input order, P2G {r['p2g']}, "
+                print(f"issue 14 goal >= {goal / 1e6:.0f} M particle-substeps/s, {r['order']} input order, {label(r)}, "
                       f"{r['n']} particles: {'MET' if r['rate'] >= goal else 'NOT MET'} ({r['rate'] / 1e6:.1f} M)")
 
 

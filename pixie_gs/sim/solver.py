@@ -26,17 +26,20 @@ from ..devices import resolve_warp_device  # noqa: E402
 from ..errors import ComputationError, InputError
 from ..materials import MATERIAL_NAMES, METAL, SNOW, STATIONARY, VISCOPLASTIC
 from ..progress import stage
-from . import kernels
+from . import kernels, p2g_block
 from .constitutive import NO_YIELD
 from .particles import Particles
 from .reduce import FrameStats, StatsReducer, reference_stats
 from .scene import BOUNDARY_CELLS, Scene
 from .rigid import PartChoice, RigidBodies, plan_stiff_parts, true_stiffness_report, wall_bounds
-from .sort import cell_order, cell_runs, chunk_runs, permute_in_place
+from .sort import MAX_RUN, cell_order, cell_runs, chunk_runs, key_dims, permute_in_place
 from .state import ARRAY_FIELDS, State
 
 CHUNK = 8  # particles per P2G thread while the particles are in no cell order (sort_every = 0)
-SORT_SUBSTEPS = 4  # with sorting on, the chunked P2G's cell order is refreshed every this many substeps
+SORT_SUBSTEPS = 4  # with sorting on, the chunked/block P2G's cell order is refreshed every this many substeps
+BLOCK_LANES = {"block": 16, "block32": 32}  # block P2G kinds → threads per run (sim/p2g_block.py)
+RUN_P2G = ("chunked",) + tuple(BLOCK_LANES)  # P2G kinds that walk sorted runs (re-indexed inside a frame)
+RESORT_SUBSTEP = 16  # resort_inside: the frame's array re-sort goes in at the first index sort from this substep
 SORT_MIN_PARTICLES = 50_000  # on a GPU, smaller runs fit in cache and are launch-bound: no sorting
 
 FAR = 1.0e30  # "unbounded" for regions and time windows passed to kernels
@@ -94,17 +97,23 @@ class MPMSolver:
     The scene is read once, at construction; build a new solver to change it.
     `sort_every`: re-sort the particle arrays into cell order every this many frames (0: keep
     the caller's order, never sort; None: every frame, except on a GPU below SORT_MIN_PARTICLES); inside a frame the chunked P2G gets a fresh cell order (an
-    index, the arrays stay put) every SORT_SUBSTEPS substeps. Sorted and unsorted runs agree to
-    float rounding.
+    index, the arrays stay put) every `sort_substeps` substeps (None: SORT_SUBSTEPS). Sorted and
+    unsorted runs agree to float rounding. `resort_inside`: with a chunked/block P2G, a frame's
+    re-sort of the arrays replaces its first in-frame index sort from substep RESORT_SUBSTEP on,
+    instead of running at the frame start, where the device waits while the host issues it.
+    `g2p_max_registers`: compile G2P with at most this many registers per CUDA thread
+    (kernels.g2p_kernel; None: the compiler's choice).
     The Warp arrays (x, v, F, ...) are in slot order; use the accessors for the caller's order.
     `p2g`: "chunked" (one thread per run of same-cell particles sums them before touching the
     grid, kernels.p2g_chunked), "atomic" (one global atomic per particle and node, kernels.p2g, the
-    plain reference) or "auto" (chunked on a GPU when sorting, else atomic; on the CPU atomic
-    measured faster).
+    plain reference), "block" / "block32" (16 / 32 threads per run of a 2×2×2-cell block sum into
+    a 4×4×4-node window, sim/p2g_block.py; need sorting; meant for GPUs, opt-in until measured)
+    or "auto" (chunked on a GPU when sorting, else atomic; on the CPU atomic measured faster).
     """
 
     def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int | None = None,
-                 p2g: str = "auto") -> None:
+                 p2g: str = "auto", sort_substeps: int | None = None, resort_inside: bool = False,
+                 g2p_max_registers: int | None = None) -> None:
         particles.validate()
         self.scene = scene
         self.device = resolve_warp_device(device)
@@ -122,11 +131,19 @@ class MPMSolver:
         if sort_every is None:
             sort_every = 1 if self.device == "cpu" or self.n >= SORT_MIN_PARTICLES else 0
         self.sort_every = int(sort_every)
-        if p2g not in ("auto", "chunked", "atomic"):
-            raise ValueError(f"p2g must be 'auto', 'chunked' or 'atomic', got {p2g!r}")
+        if p2g not in ("auto", "atomic") + RUN_P2G:
+            raise ValueError(f"p2g must be 'auto', 'atomic' or one of {RUN_P2G}, got {p2g!r}")
+        if p2g in BLOCK_LANES and self.sort_every == 0:
+            raise ValueError(f"p2g {p2g!r} needs the particles sorted (sort_every > 0)")
         if p2g == "auto":
             p2g = "chunked" if self.device != "cpu" and self.sort_every > 0 else "atomic"
         self.p2g_kind = p2g
+        self.sort_substeps = SORT_SUBSTEPS if sort_substeps is None else int(sort_substeps)
+        if self.sort_substeps < 1:
+            raise ValueError(f"sort_substeps must be >= 1, got {sort_substeps!r}")
+        self.resort_inside = bool(resort_inside)
+        self.g2p_max_registers = g2p_max_registers
+        self._key_shift = p2g_block.BLOCK_SHIFT if p2g in BLOCK_LANES else 0  # sort by cell, or by block
         self.timing: dict[str, float] = {}
         self.kernel_timer = None
         self._impulse_done = [False] * len(scene.impulses)
@@ -166,6 +183,7 @@ class MPMSolver:
         chunk_runs(self.n, CHUNK, self.run_start, self.run_count)
         self._identity = wp.array(np.arange(self.n, dtype=np.int32), dtype=wp.int32, device=d)
         self._p2g_index = self._identity  # P2G reads particle index[i] for run position i
+        self._run_keys = wp.zeros(1, dtype=wp.int32, device=d)  # block P2G: key at sorted position i (set by the sort)
         self._order_host: np.ndarray | None = None  # host copy of `order`, None when stale
         self._reducer = StatsReducer(d)
 
@@ -308,24 +326,28 @@ class MPMSolver:
                 self.wave_c, self.yield_stress, self.material, self.Jp, self.fixed_flag, self.order]
 
     def _resort(self) -> None:
-        """Put the particle arrays into grid-cell order (on the device; order follows)."""
-        perm, keys = cell_order(self.x, self.grid_info)
+        """Put the particle arrays into grid-cell order (block order for the block P2G; on the
+        device; order follows)."""
+        perm, keys = cell_order(self.x, self.grid_info, self._key_shift)
         permute_in_place(perm, self._particle_arrays())
         self._order_host = None
         cell_runs(keys, self.run_start, self.run_count)
-        self._set_p2g_index(self._identity)
+        self._set_p2g_index(self._identity, keys)
 
     def _reindex(self) -> None:
-        """A fresh cell order for the chunked P2G only: sort an index, not the arrays (cheap, all
-        on the device: done every SORT_SUBSTEPS substeps as particles drift between cells)."""
-        perm, keys = cell_order(self.x, self.grid_info)
+        """A fresh cell (block) order for the chunked/block P2G only: sort an index, not the arrays
+        (cheap, all on the device: done every sort_substeps substeps as particles drift)."""
+        perm, keys = cell_order(self.x, self.grid_info, self._key_shift)
         cell_runs(keys, self.run_start, self.run_count)
-        self._set_p2g_index(perm)
+        self._set_p2g_index(perm, keys)
 
-    def _set_p2g_index(self, index: wp.array) -> None:
+    def _set_p2g_index(self, index: wp.array, keys: wp.array) -> None:
         self._p2g_index = index
-        if self.p2g_kind == "chunked":
+        if self.p2g_kind in RUN_P2G:
             self._p2g.set_param_by_name("index", index)
+        if self.p2g_kind in BLOCK_LANES:  # the block P2G reads each run's block from its key
+            self._run_keys = keys
+            self._p2g.set_param_by_name("keys", keys)
 
     @property
     def n_runs(self) -> int:
@@ -439,10 +461,14 @@ class MPMSolver:
             raise InputError(f"frame duration must be a positive number of seconds, got {frame_dt_s}")
         clock = time.perf_counter
         t_start = clock()
-        if self.sort_every > 0 and self.frame > 0 and self.frame % self.sort_every == 0:
+        resort_due = self.sort_every > 0 and self.frame > 0 and self.frame % self.sort_every == 0
+        if resort_due and not self.resort_inside:
             self._resort()
         t_sorted = clock()
         n_sub = self.substeps_for(frame_dt_s)
+        resort_at = self._inside_resort_substep(n_sub) if resort_due and self.resort_inside else -1
+        if resort_due and self.resort_inside and resort_at < 0:
+            self._resort()
         t_stats = clock()
         dt = frame_dt_s / n_sub
         t0 = self.time_s
@@ -450,8 +476,14 @@ class MPMSolver:
         self.grid_momentum.zero_()
         self.grid_fixed.zero_()
         for s in range(n_sub):
-            if self.sort_every > 0 and self.p2g_kind == "chunked" and s > 0 and s % SORT_SUBSTEPS == 0:
+            if s == resort_at:  # the frame's full re-sort, issued while the device is busy
+                self._resort()
+                if self.kernel_timer is not None:
+                    self.kernel_timer.mark("resort")
+            elif self.sort_every > 0 and self.p2g_kind in RUN_P2G and s > 0 and s % self.sort_substeps == 0:
                 self._reindex()  # all on the device: the launches queue behind the substeps
+                if self.kernel_timer is not None:
+                    self.kernel_timer.mark("sort")
             t = t0 + s * dt
             self._apply_impulses(t + dt)
             self._substep(dt, t)
@@ -464,6 +496,16 @@ class MPMSolver:
         self._guard(dt)
         self.timing = {"sort_s": t_sorted - t_start, "stats_s": t_stats - t_sorted,
                        "launch_s": t_launched - t_stats, "guard_s": clock() - t_launched}
+
+    def _inside_resort_substep(self, n_sub: int) -> int:
+        """Substep before which `resort_inside` re-sorts the arrays: the first in-frame index sort
+        at or after RESORT_SUBSTEP (by then the host, issuing launches faster than the device runs
+        them, is far enough ahead that issuing the ~40 launches of a re-sort leaves the device no
+        gap); -1: at the frame start (no in-frame index sorts, or too few substeps)."""
+        if self.p2g_kind not in RUN_P2G:
+            return -1
+        at = -(-RESORT_SUBSTEP // self.sort_substeps) * self.sort_substeps
+        return at if at < n_sub else -1
 
     def _apply_impulses(self, t_end: float) -> None:
         for i, imp in enumerate(self.scene.impulses):
@@ -500,6 +542,14 @@ class MPMSolver:
             self._p2g = wp.launch(kernels.p2g_chunked, dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + [self.run_start, self.run_count, self._p2g_index]
                                   + grid_outputs)
+        elif self.p2g_kind in BLOCK_LANES:
+            lanes = BLOCK_LANES[self.p2g_kind]
+            kd = key_dims(self.dims, p2g_block.BLOCK_SHIFT)
+            groups = p2g_block.group_count(self.n, kd[0] * kd[1] * kd[2], MAX_RUN)
+            self._p2g = wp.launch(p2g_block.block_kernel(lanes), dim=groups * lanes, device=d, record_cmd=True,
+                                  block_dim=p2g_block.BLOCK_DIM,
+                                  inputs=particle_inputs + [self.run_start, self.run_count, self._p2g_index,
+                                                            self._run_keys, groups] + grid_outputs)
         else:
             self._p2g = wp.launch(kernels.p2g, dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + grid_outputs)
@@ -510,7 +560,7 @@ class MPMSolver:
                     self.wind_timing, len(sc.wind), sc.damping, sc.air_drag, int(sc.ground.enabled),
                     sc.ground.height_m, sc.ground.friction, int(sc.walls == "sticky"), BOUNDARY_CELLS])
         self._g2p = wp.launch(
-            kernels.g2p, dim=self.n, device=d, record_cmd=True,
+            kernels.g2p_kernel(self.g2p_max_registers), dim=self.n, device=d, record_cmd=True,
             inputs=[self.x, self.v, self.C, self.F, self.mu, self.lam, self.yield_stress, self.material,
                     self.Jp, self.fixed_flag, self.grid_info, self.material_params, 0.0, self.grid_velocity,
                     self.stress])
