@@ -79,7 +79,7 @@ def perturbations(clean, rng: np.random.Generator, real_logits: np.ndarray, prep
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--per-class", type=int, default=1, help="objects per category")
-    ap.add_argument("--gaussians", type=int, default=8000, help="Gaussians per object (±20 %)")
+    ap.add_argument("--gaussians", type=int, default=8000, help="Gaussians per object (±20 %%)")
     ap.add_argument("--seed", type=int, default=77, help="test-split dataset seed of the objects")
     ap.add_argument("--classes", default=None, help="comma-separated categories (default: all)")
     ap.add_argument("--real", default=str(ROOT.parent / "shared" / "real" / "orig"), help="real captures folder")

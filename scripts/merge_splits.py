@@ -38,5 +38,8 @@ def merge(out_dir: Path, split: str, parts: list[Path]) -> int:
 
 
 if __name__ == "__main__":
+    if len(sys.argv) < 4 or sys.argv[1] in ("-h", "--help"):
+        print(__doc__.strip())
+        sys.exit(0 if len(sys.argv) > 1 and sys.argv[1] in ("-h", "--help") else 2)
     n = merge(Path(sys.argv[1]), sys.argv[2], [Path(p) for p in sys.argv[3:]])
     print(f"merged {n} objects into {sys.argv[1]}/{sys.argv[2]}")
