@@ -46,6 +46,18 @@ def test_symmetry_judge_on_analytic_shapes(shape, up, same):
         < 1.01  # the truth against itself is the floor (the best turn found may differ from 0 by ≤ 0.1°)
 
 
+@pytest.mark.parametrize("shape, expected", [("box", 7.0), ("cone", 173.0)])
+def test_a_symmetric_equivalent_off_by_a_small_tilt_counts_the_tilt(shape, expected):
+    """Upside down and tilted 7°: a 0.5 × 0.4 × 0.3 box is the same box upside down, so the error is the
+    7° tilt; a cone has no such symmetry, so it stays 173° (analytic answers)."""
+    mesh = {"box": trimesh.creation.box([0.5, 0.4, 0.3]), "cone": trimesh.creation.cone(0.2, 0.4)}[shape]
+    cloud = mesh_to_splat(mesh, 4000, np.random.default_rng(0))
+    labels = np.zeros(len(cloud), np.int32)
+    est = Rotation.from_euler("x", 7.0, degrees=True).apply([0.0, 0.0, -1.0])
+    error, _ = symmetric_error(cloud.means, labels, est, np.array([0.0, 0.0, 1.0]))
+    assert error == pytest.approx(expected, abs=0.01)
+
+
 def test_part_labels_break_a_symmetry():
     """Two halves of a sphere with different part labels: upside down is no longer the same."""
     cloud = mesh_to_splat(trimesh.creation.icosphere(3, 0.2), 4000, np.random.default_rng(1))

@@ -82,12 +82,35 @@ def distance_over_floor(points: np.ndarray, labels: np.ndarray, est_up: np.ndarr
             float(np.percentile(d, 95)) / max(float(np.percentile(floor, 95)), 1e-30))
 
 
+def _same_shape(points: np.ndarray, labels: np.ndarray, up: np.ndarray, true_up: np.ndarray) -> bool:
+    mean, p95 = distance_over_floor(points, labels, up, true_up)
+    return mean <= MATCH_RATIO and p95 <= MATCH_RATIO
+
+
+def equivalent_ups(points: np.ndarray, true_up: np.ndarray) -> list[np.ndarray]:
+    """Directions that may stand for the truth on a symmetric object, decided by the object alone (not
+    the estimate): the half turn (−up: a frame or a box upside down) and the quarter turns onto the
+    horizontal principal axes of the upright object (a cube on another face), in the file's frame."""
+    t = np.asarray(true_up, np.float64) / np.linalg.norm(true_up)
+    rot, _ = Rotation.align_vectors([[0.0, 0.0, 1.0]], [t])
+    flat = _upright(np.asarray(points, np.float64), t)[:, :2]
+    _, vecs = np.linalg.eigh(np.cov(flat.T))
+    sides = [rot.inv().apply([v[0], v[1], 0.0]) for v in vecs.T]
+    return [-t] + [s * sign for s in sides for sign in (1.0, -1.0)]
+
+
 def symmetric_error(points: np.ndarray, labels: np.ndarray, est_up: np.ndarray, true_up: np.ndarray
                     ) -> tuple[float, bool]:
-    """(error in degrees counting a symmetric equivalent as 0, whether it was counted that way)."""
+    """(error in degrees, whether a symmetric equivalent of the truth was used). The estimate counts 0
+    when the object put upright by it is the same shape as by the truth; otherwise the error is the angle
+    to the nearest of `equivalent_ups` that is itself the same shape as the truth (a frame upside down
+    and tilted 7° is 7° off, not 173°), or to the truth."""
     raw = angle_deg(est_up, true_up)
     if raw <= 1.0:
         return raw, False
-    mean, p95 = distance_over_floor(points, labels, est_up, true_up)
-    same = mean <= MATCH_RATIO and p95 <= MATCH_RATIO
-    return (0.0, True) if same else (raw, False)
+    if _same_shape(points, labels, est_up, true_up):
+        return 0.0, True
+    nearest = min(equivalent_ups(points, true_up), key=lambda u: angle_deg(est_up, u))
+    if angle_deg(est_up, nearest) < raw and _same_shape(points, labels, nearest, true_up):
+        return angle_deg(est_up, nearest), True
+    return raw, False
