@@ -52,9 +52,19 @@ def augmentation_matrix(gen, cfg: AugmentConfig, device):
     return (stretch @ rot @ flip).to(device)
 
 
+def object_generator(epoch_seed: int, index: int):
+    """The random draws that augment object `index` of the store in one epoch (`epoch_seed`): the same
+    whichever process builds it, so training on N processes sees the same augmented objects as on one
+    (with the shared shuffling, the same run up to float summation order)."""
+    import torch
+
+    return torch.Generator().manual_seed((int(epoch_seed) * 1_000_003 + int(index)) % (2 ** 63))
+
+
 def build_batch(store, ids: list[int], spec: FeatureSpec, augment: AugmentConfig | None = None,
-                gen=None) -> Batch:
-    """Grids and labels for objects `ids` of a DeviceStore (augmented when `augment` is given)."""
+                epoch_seed: int = 0) -> Batch:
+    """Grids and labels for objects `ids` of a DeviceStore (augmented when `augment` is given, each object
+    by its own draws: `object_generator(epoch_seed, id)`)."""
     import torch
 
     dev = store.device
@@ -64,6 +74,7 @@ def build_batch(store, ids: list[int], spec: FeatureSpec, augment: AugmentConfig
         o = store.object(i)
         means, cov, rgb = o["means"], o["covariances"], o["rgb"]
         if augment is not None:
+            gen = object_generator(epoch_seed, i)
             a = augmentation_matrix(gen, augment, dev)
             means = means @ a.T
             cov = a @ cov @ a.T

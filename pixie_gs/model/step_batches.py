@@ -43,7 +43,7 @@ def slice_batch(batch: Batch, start: int, stop: int) -> Batch:
                  batch.target_physical[start:stop], batch.means_unit[start:stop])
 
 
-def step_batches(store, batches: list[list[int]], spec: FeatureSpec, augment: AugmentConfig | None, gen,
+def step_batches(store, batches: list[list[int]], spec: FeatureSpec, augment: AugmentConfig | None, epoch_seed: int,
                  ctx: DistContext = SINGLE, objects_per_build: int = 1) -> Iterator[tuple[list[int], Batch, bool]]:
     """For each global batch of `batches`: (its ids, this rank's share built as a Batch, whether the share
     counts — see `rank_share`). Consecutive steps are built together, about `objects_per_build` of this
@@ -55,7 +55,7 @@ def step_batches(store, batches: list[list[int]], spec: FeatureSpec, augment: Au
     for g0 in range(0, len(batches), group):
         chunk = batches[g0:g0 + group]
         shares = [rank_share(ids, ctx) for ids in chunk]
-        built = build_batch(store, [i for share, _ in shares for i in share], spec, augment, gen)
+        built = build_batch(store, [i for share, _ in shares for i in share], spec, augment, epoch_seed)
         start = 0
         for ids, (share, counts) in zip(chunk, shares):
             yield ids, slice_batch(built, start, start + len(share)), counts

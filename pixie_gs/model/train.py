@@ -180,9 +180,6 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         history = json.loads(state["history_json"])
         stage(f"resuming after epoch {start_epoch} (step {step}, {elapsed_before:.0f} s trained)")
     gen = torch.Generator().manual_seed(cfg.seed + 7919 * start_epoch)  # shuffling: the same on every rank
-    # augmentation: one process draws from the shuffling generator (as before torchrun support); ranks draw their own
-    aug_gen = gen if not dist.enabled else torch.Generator().manual_seed(
-        cfg.seed + 7919 * start_epoch + 104729 * (dist.rank + 1))
     model = net
     if dist.enabled:  # after loading weights: DDP starts every rank from rank 0's
         from torch.nn.parallel import DistributedDataParallel
@@ -215,7 +212,8 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         sums = {"loss": 0.0, "ce": 0.0, "mse_log_E": 0.0, "mse_nu": 0.0, "mse_log_rho": 0.0}
         done = objects = 0
         t_epoch = time.perf_counter()
-        steps = step_batches(train_store, batches, spec, aug, aug_gen, dist, per_build)
+        # augmentation: per object and epoch (batch.object_generator), so every rank draws what one process would
+        steps = step_batches(train_store, batches, spec, aug, cfg.seed * 7919 + epoch, dist, per_build)
         for ids, batch, counts in progress(steps, f"epoch {epoch + 1}/{cfg.epochs}", total=len(batches),
                                            unit="batch"):
             elapsed = elapsed_before + time.perf_counter() - t_train
