@@ -259,7 +259,7 @@ def parse_variant(text: str) -> tuple[str, int, str, int | None]:
             regs = int(opt[4:])
         else:
             raise SystemExit(f"--variant {text!r}: unknown option {opt!r}")
-    if kind not in ("auto", "chunked", "atomic", "block", "block32"):
+    if kind not in ("auto", "chunked", "atomic"):
         raise SystemExit(f"--variant {text!r}: unknown P2G kind {kind!r}")
     return kind, k_sort, resort, regs
 
@@ -274,27 +274,25 @@ def main() -> None:
     parser.add_argument("--baseline-substeps", type=int, default=3)
     parser.add_argument("--order", nargs="+", default=["random", "sorted"], choices=["lattice", "random", "sorted"],
                         help="particle order(s) to time (see above)")
-    parser.add_argument("--p2g", nargs="+", default=["auto"], choices=["auto", "chunked", "atomic", "block", "block32"],
+    parser.add_argument("--p2g", nargs="+", default=["auto"], choices=["auto", "chunked", "atomic"],
                         help="P2G kernel(s): chunked (one thread per same-cell run), atomic (the plain one), "
-                             "block / block32 (16 / 32 threads per run of a 2x2x2-cell block, sorted order only), "
                              "auto (solver default: chunked on a GPU, atomic on the CPU)")
     parser.add_argument("--sort-substeps", type=int, nargs="+", default=[0],
                         help="in-frame index re-sort interval(s) in substeps for the sorted order "
                              "(0: the solver's default)")
     parser.add_argument("--resort", nargs="+", default=["start"], choices=["start", "inside"],
-                        help="sorted order, chunked/block P2G: the frame's array re-sort at the frame start (the "
+                        help="sorted order, chunked P2G: the frame's array re-sort at the frame start (the "
                              "solver's default) or inside the frame in place of an index sort (resort_inside)")
     parser.add_argument("--variant", action="append", default=[], metavar="KIND[,sort=K][,inside][,g2p=R]",
                         help="a sorted-order variant (repeatable; replaces the --p2g x --sort-substeps x "
                              "--resort product for the sorted order): P2G kind, in-frame index re-sort "
                              "interval K, array re-sort inside the frame, G2P compiled with at most R "
-                             "registers per CUDA thread; e.g. block,sort=16,inside,g2p=64")
+                             "registers per CUDA thread; e.g. chunked,sort=16,inside,g2p=64")
     parser.add_argument("--frames", type=int, default=1,
                         help="timed frames of --substeps each, one after the other (each printed, mean reported)")
     args = parser.parse_args()
 
     from pixie_gs.devices import resolve_warp_device
-    from pixie_gs.sim.solver import RUN_P2G
 
     device = resolve_warp_device(args.device)
     substeps = args.substeps or (200 if device.startswith("cuda") else 20)
@@ -319,9 +317,7 @@ def main() -> None:
                 if not (args.variant and o == "sorted")]
         runs += [("sorted", *parse_variant(v)) for v in args.variant if "sorted" in args.order]
         for order, p2g, k_sort, resort, g2p_registers in runs:
-            if p2g.startswith("block") and order != "sorted":
-                continue  # the block P2G needs the solver's sorting
-            resorts = order == "sorted" and (p2g in RUN_P2G or (p2g == "auto" and device != "cpu"))
+            resorts = order == "sorted" and (p2g == "chunked" or (p2g == "auto" and device != "cpu"))
             if (k_sort != args.sort_substeps[0] or resort != args.resort[0]) and not resorts and g2p_registers is None:
                 continue  # no in-frame re-sort to vary
             r = time_warp(n, device, args.warmup, substeps, order, p2g, k_sort or None, args.frames, resort,

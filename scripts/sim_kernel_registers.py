@@ -73,13 +73,11 @@ def main() -> None:
 
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
-    from pixie_gs.sim import kernels, p2g_block
+    from pixie_gs.sim import kernels
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
         for label, k in [("p2g (atomic)", kernels.p2g), ("p2g_chunked", kernels.p2g_chunked),
-                         ("p2g block, 16 lanes", p2g_block.block_kernel(16)),
-                         ("p2g block, 32 lanes", p2g_block.block_kernel(32)),
                          ("grid_update", kernels.grid_update), ("g2p", kernels.g2p)]:
             compile_and_report(label, k, args.arch, out)
         for cap in args.caps:

@@ -229,97 +229,13 @@ def test_solver_with_fast_p2g_agrees_with_the_atomic_one(device):
     assert np.abs(runs[0] - runs[1]).max() < 1e-5
 
 
-def block_scatter(sim: MPMSolver, lanes: int, runs: np.ndarray, index: np.ndarray, keys: np.ndarray,
-                  groups: int) -> tuple[np.ndarray, ...]:
-    """(grid mass, momentum, fixed weight) after one block P2G (sim/p2g_block.py, `lanes` threads
-    per run) of runs `runs` (starts followed by N) over particles index[i], block keys[i],
-    `groups` thread groups."""
-    import warp as wp
-
-    from pixie_gs.sim import p2g_block
-
-    d = sim.device
-    out = [wp.zeros(sim.dims, dtype=t, device=d) for t in (float, wp.vec3, float)]
-    inputs = [sim.x, sim.v, sim.C, sim.stress, sim.volume, sim.mass, sim.fixed_flag, sim.grid_info, 1e-3]
-    ints = [wp.array(np.asarray(a, np.int32), dtype=wp.int32, device=d) for a in (runs, [len(runs) - 1], index, keys)]
-    wp.launch(p2g_block.block_kernel(lanes), dim=groups * lanes, device=d, inputs=inputs + ints + [groups] + out)
-    return tuple(a.numpy() for a in out)
-
-
-def block_keys(sim: MPMSolver, x: np.ndarray) -> np.ndarray:
-    """Block key (2×2×2 base cells, z fastest) of positions x (N,3) m: numpy twin of sort.cell_keys."""
-    from pixie_gs.sim.sort import key_dims
-
-    cell = np.floor((x.astype(np.float64) - sim.origin) / sim.dx - 0.5).astype(np.int64) >> 1
-    kd = key_dims(sim.dims, 1)
-    return (cell[:, 0] * kd[1] + cell[:, 1]) * kd[2] + cell[:, 2]
-
-
-@pytest.mark.parametrize("lanes", [16, 32])
-def test_block_p2g_matches_the_plain_atomic_kernel(device, lanes):
-    scene = scene_for_tests()
-    sim = MPMSolver(mixed_block(scene), scene, device, sort_every=1, p2g="block")
-    rng = np.random.default_rng(3)
-    sim.C.assign(rng.normal(0.0, 1.0, (sim.n, 3, 3)).astype(np.float32))
-    sim.stress.assign(rng.normal(0.0, 100.0, (sim.n, 3, 3)).astype(np.float32))
-    own_runs = sim.run_start.numpy()[:sim.n_runs + 1]
-    own_keys = sim._run_keys.numpy()
-    identity = np.arange(sim.n)
-    # the solver's sort: arrays in block order, runs = blocks (split every MAX_RUN particles)
-    assert np.array_equal(own_keys, block_keys(sim, sim.x.numpy()))
-    assert np.all(np.diff(own_keys) >= 0)
-    assert np.array_equal(own_runs, np.unique(np.r_[np.nonzero(np.r_[1, np.diff(own_keys)])[0],
-                                                    np.arange(0, sim.n, 64), sim.n]))
-    cases = [(own_runs, identity, own_keys, 64), (own_runs, identity, own_keys, 3)]  # 3 groups: each takes many runs
-    perm = rng.permutation(sim.n)  # arbitrary chunks through an index: mostly "drifted" particles
-    chunks = np.append(np.arange(0, sim.n, 13), sim.n)
-    cases.append((chunks, perm, block_keys(sim, sim.x.numpy())[perm], 50))
-    reference_before = scatter(sim, "atomic")
-    results = [block_scatter(sim, lanes, *case) for case in cases]
-    # particles drifted since the sort: move each by up to ±0.6 cells, keep the old runs and keys
-    x = sim.x.numpy()
-    moved = x + rng.uniform(-0.6, 0.6, x.shape).astype(np.float32) * sim.dx
-    sim.x.assign(moved)
-    drifted = block_keys(sim, moved) != own_keys
-    assert 0.3 < drifted.mean() < 0.95  # both paths run
-    reference_after = scatter(sim, "atomic")
-    results.append(block_scatter(sim, lanes, own_runs, identity, own_keys, 64))
-    for ref, fast in zip([reference_before] * len(cases) + [reference_after], results):
-        for a, b in zip(ref, fast):
-            assert np.abs(a - b).max() <= 1e-5 * np.abs(a).max()  # summation order only
-    assert reference_before[2].max() > 0  # fixed particles were scattered too
-    # and independent of the reference: total mass and momentum are the particles' own
-    mass = sim.mass.numpy().astype(np.float64)
-    assert results[-1][0].sum() == pytest.approx(mass.sum(), rel=1e-5)
-    momentum = (mass[:, None] * sim.v.numpy()).sum(0)
-    assert np.allclose(results[-1][1].reshape(-1, 3).sum(0), momentum, rtol=1e-4, atol=1e-9)
-
-
 def moving_block(scene: Scene) -> Particles:
     """mixed_block with nothing held (its held particles pin nearly every node) sliding at
-    ~0.6 cells per frame in x: particles leave their cells and blocks within a frame."""
+    ~0.6 cells per frame in x: particles leave their cells within a frame."""
     import dataclasses
 
     p = mixed_block(scene)
     return dataclasses.replace(p, v=p.v + np.array([0.6, 0.0, 0.0]), fixed=np.zeros(len(p.x), bool))
-
-
-@pytest.mark.parametrize("kind", ["block", "block32"])
-def test_solver_with_block_p2g_agrees_with_the_atomic_one(device, kind):
-    scene = scene_for_tests()
-    p = moving_block(scene)
-    runs = []
-    for p2g in ("atomic", kind):
-        sim = MPMSolver(p, scene, device, p2g=p2g, sort_every=1, sort_substeps=3)
-        for _ in range(2):
-            sim.step_frame(1 / 60)
-        runs.append((sim.positions(), sim.velocities()))
-    assert sim.substeps_last_frame > 6  # the in-frame index re-sorts ran
-    assert np.abs(runs[1][0] - p.x).max() > scene.dx  # it moved across cells
-    assert np.abs(runs[0][0] - runs[1][0]).max() < 1e-5  # m
-    assert np.abs(runs[0][1] - runs[1][1]).max() < 1e-4  # m/s
-    with pytest.raises(ValueError, match="sorted"):
-        MPMSolver(p, scene, device, p2g=kind, sort_every=0)
 
 
 class MarkRecorder:
@@ -332,14 +248,13 @@ class MarkRecorder:
         self.names.append(name)
 
 
-@pytest.mark.parametrize("kind", ["chunked", "block"])
-def test_resort_inside_the_frame_agrees_and_keeps_the_order_map(device, kind):
+def test_resort_inside_the_frame_agrees_and_keeps_the_order_map(device):
     from pixie_gs.sim import solver as solver_module
 
     scene = scene_for_tests()
     p = moving_block(scene)
     reference = MPMSolver(p, scene, device, p2g="atomic", sort_every=1)
-    sim = MPMSolver(p, scene, device, p2g=kind, sort_every=1, sort_substeps=5, resort_inside=True)
+    sim = MPMSolver(p, scene, device, p2g="chunked", sort_every=1, sort_substeps=5, resort_inside=True)
     recorder = MarkRecorder()
     for frame in range(3):
         order_before = sim.order.numpy().copy()
@@ -353,7 +268,7 @@ def test_resort_inside_the_frame_agrees_and_keeps_the_order_map(device, kind):
             assert not np.array_equal(sim.order.numpy(), order_before)  # particles changed cells: new order
         assert np.abs(reference.positions() - sim.positions()).max() < 1e-5  # m, in the caller's order
         assert np.abs(reference.velocities() - sim.velocities()).max() < 1e-4  # m/s
-    # the arrays were left in cell (block) order by the last re-sort, as far as particles moved since
+    # the arrays were left in cell order by the last re-sort, as far as particles moved since
     assert np.array_equal(sim.material.numpy(), p.material_id[sim.order.numpy()])
 
 

@@ -26,19 +26,17 @@ from ..devices import resolve_warp_device  # noqa: E402
 from ..errors import ComputationError, InputError
 from ..materials import MATERIAL_NAMES, METAL, SNOW, STATIONARY, VISCOPLASTIC
 from ..progress import stage
-from . import kernels, p2g_block
+from . import kernels
 from .constitutive import NO_YIELD
 from .particles import Particles
 from .reduce import FrameStats, StatsReducer, reference_stats
 from .scene import BOUNDARY_CELLS, Scene
 from .rigid import PartChoice, RigidBodies, plan_stiff_parts, true_stiffness_report, wall_bounds
-from .sort import MAX_RUN, cell_order, cell_runs, chunk_runs, key_dims, permute_in_place
+from .sort import cell_order, cell_runs, chunk_runs, permute_in_place
 from .state import ARRAY_FIELDS, State
 
 CHUNK = 8  # particles per P2G thread while the particles are in no cell order (sort_every = 0)
-SORT_SUBSTEPS = 4  # with sorting on, the chunked/block P2G's cell order is refreshed every this many substeps
-BLOCK_LANES = {"block": 16, "block32": 32}  # block P2G kinds → threads per run (sim/p2g_block.py)
-RUN_P2G = ("chunked",) + tuple(BLOCK_LANES)  # P2G kinds that walk sorted runs (re-indexed inside a frame)
+SORT_SUBSTEPS = 4  # with sorting on, the chunked P2G's cell order is refreshed every this many substeps
 RESORT_SUBSTEP = 16  # resort_inside: the frame's array re-sort goes in at the first index sort from this substep
 SORT_MIN_PARTICLES = 50_000  # on a GPU, smaller runs fit in cache and are launch-bound: no sorting
 
@@ -98,7 +96,7 @@ class MPMSolver:
     `sort_every`: re-sort the particle arrays into cell order every this many frames (0: keep
     the caller's order, never sort; None: every frame, except on a GPU below SORT_MIN_PARTICLES); inside a frame the chunked P2G gets a fresh cell order (an
     index, the arrays stay put) every `sort_substeps` substeps (None: SORT_SUBSTEPS). Sorted and
-    unsorted runs agree to float rounding. `resort_inside`: with a chunked/block P2G, a frame's
+    unsorted runs agree to float rounding. `resort_inside`: with the chunked P2G, a frame's
     re-sort of the arrays replaces its first in-frame index sort from substep RESORT_SUBSTEP on,
     instead of running at the frame start, where the device waits while the host issues it.
     `g2p_max_registers`: compile G2P with at most this many registers per CUDA thread
@@ -106,9 +104,8 @@ class MPMSolver:
     The Warp arrays (x, v, F, ...) are in slot order; use the accessors for the caller's order.
     `p2g`: "chunked" (one thread per run of same-cell particles sums them before touching the
     grid, kernels.p2g_chunked), "atomic" (one global atomic per particle and node, kernels.p2g, the
-    plain reference), "block" / "block32" (16 / 32 threads per run of a 2×2×2-cell block sum into
-    a 4×4×4-node window, sim/p2g_block.py; need sorting; meant for GPUs, opt-in until measured)
-    or "auto" (chunked on a GPU when sorting, else atomic; on the CPU atomic measured faster).
+    plain reference) or "auto" (chunked on a GPU when sorting, else atomic; on the CPU atomic
+    measured faster).
     """
 
     def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int | None = None,
@@ -131,10 +128,8 @@ class MPMSolver:
         if sort_every is None:
             sort_every = 1 if self.device == "cpu" or self.n >= SORT_MIN_PARTICLES else 0
         self.sort_every = int(sort_every)
-        if p2g not in ("auto", "atomic") + RUN_P2G:
-            raise ValueError(f"p2g must be 'auto', 'atomic' or one of {RUN_P2G}, got {p2g!r}")
-        if p2g in BLOCK_LANES and self.sort_every == 0:
-            raise ValueError(f"p2g {p2g!r} needs the particles sorted (sort_every > 0)")
+        if p2g not in ("auto", "chunked", "atomic"):
+            raise ValueError(f"p2g must be 'auto', 'chunked' or 'atomic', got {p2g!r}")
         if p2g == "auto":
             p2g = "chunked" if self.device != "cpu" and self.sort_every > 0 else "atomic"
         self.p2g_kind = p2g
@@ -143,7 +138,6 @@ class MPMSolver:
             raise ValueError(f"sort_substeps must be >= 1, got {sort_substeps!r}")
         self.resort_inside = bool(resort_inside)
         self.g2p_max_registers = g2p_max_registers
-        self._key_shift = p2g_block.BLOCK_SHIFT if p2g in BLOCK_LANES else 0  # sort by cell, or by block
         self.timing: dict[str, float] = {}
         self.kernel_timer = None
         self._impulse_done = [False] * len(scene.impulses)
@@ -183,7 +177,6 @@ class MPMSolver:
         chunk_runs(self.n, CHUNK, self.run_start, self.run_count)
         self._identity = wp.array(np.arange(self.n, dtype=np.int32), dtype=wp.int32, device=d)
         self._p2g_index = self._identity  # P2G reads particle index[i] for run position i
-        self._run_keys = wp.zeros(1, dtype=wp.int32, device=d)  # block P2G: key at sorted position i (set by the sort)
         self._order_host: np.ndarray | None = None  # host copy of `order`, None when stale
         self._reducer = StatsReducer(d)
 
@@ -326,28 +319,24 @@ class MPMSolver:
                 self.wave_c, self.yield_stress, self.material, self.Jp, self.fixed_flag, self.order]
 
     def _resort(self) -> None:
-        """Put the particle arrays into grid-cell order (block order for the block P2G; on the
-        device; order follows)."""
-        perm, keys = cell_order(self.x, self.grid_info, self._key_shift)
+        """Put the particle arrays into grid-cell order (on the device; order follows)."""
+        perm, keys = cell_order(self.x, self.grid_info)
         permute_in_place(perm, self._particle_arrays())
         self._order_host = None
         cell_runs(keys, self.run_start, self.run_count)
-        self._set_p2g_index(self._identity, keys)
+        self._set_p2g_index(self._identity)
 
     def _reindex(self) -> None:
-        """A fresh cell (block) order for the chunked/block P2G only: sort an index, not the arrays
-        (cheap, all on the device: done every sort_substeps substeps as particles drift)."""
-        perm, keys = cell_order(self.x, self.grid_info, self._key_shift)
+        """A fresh cell order for the chunked P2G only: sort an index, not the arrays (cheap, all
+        on the device: done every sort_substeps substeps as particles drift between cells)."""
+        perm, keys = cell_order(self.x, self.grid_info)
         cell_runs(keys, self.run_start, self.run_count)
-        self._set_p2g_index(perm, keys)
+        self._set_p2g_index(perm)
 
-    def _set_p2g_index(self, index: wp.array, keys: wp.array) -> None:
+    def _set_p2g_index(self, index: wp.array) -> None:
         self._p2g_index = index
-        if self.p2g_kind in RUN_P2G:
+        if self.p2g_kind == "chunked":
             self._p2g.set_param_by_name("index", index)
-        if self.p2g_kind in BLOCK_LANES:  # the block P2G reads each run's block from its key
-            self._run_keys = keys
-            self._p2g.set_param_by_name("keys", keys)
 
     @property
     def n_runs(self) -> int:
@@ -480,7 +469,7 @@ class MPMSolver:
                 self._resort()
                 if self.kernel_timer is not None:
                     self.kernel_timer.mark("resort")
-            elif self.sort_every > 0 and self.p2g_kind in RUN_P2G and s > 0 and s % self.sort_substeps == 0:
+            elif self.sort_every > 0 and self.p2g_kind == "chunked" and s > 0 and s % self.sort_substeps == 0:
                 self._reindex()  # all on the device: the launches queue behind the substeps
                 if self.kernel_timer is not None:
                     self.kernel_timer.mark("sort")
@@ -502,7 +491,7 @@ class MPMSolver:
         at or after RESORT_SUBSTEP (by then the host, issuing launches faster than the device runs
         them, is far enough ahead that issuing the ~40 launches of a re-sort leaves the device no
         gap); -1: at the frame start (no in-frame index sorts, or too few substeps)."""
-        if self.p2g_kind not in RUN_P2G:
+        if self.p2g_kind != "chunked":
             return -1
         at = -(-RESORT_SUBSTEP // self.sort_substeps) * self.sort_substeps
         return at if at < n_sub else -1
@@ -542,14 +531,6 @@ class MPMSolver:
             self._p2g = wp.launch(kernels.p2g_chunked, dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + [self.run_start, self.run_count, self._p2g_index]
                                   + grid_outputs)
-        elif self.p2g_kind in BLOCK_LANES:
-            lanes = BLOCK_LANES[self.p2g_kind]
-            kd = key_dims(self.dims, p2g_block.BLOCK_SHIFT)
-            groups = p2g_block.group_count(self.n, kd[0] * kd[1] * kd[2], MAX_RUN)
-            self._p2g = wp.launch(p2g_block.block_kernel(lanes), dim=groups * lanes, device=d, record_cmd=True,
-                                  block_dim=p2g_block.BLOCK_DIM,
-                                  inputs=particle_inputs + [self.run_start, self.run_count, self._p2g_index,
-                                                            self._run_keys, groups] + grid_outputs)
         else:
             self._p2g = wp.launch(kernels.p2g, dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + grid_outputs)

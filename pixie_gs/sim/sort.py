@@ -19,18 +19,15 @@ from .kernels import GridInfo
 
 
 @wp.kernel
-def cell_keys(x: wp.array(dtype=wp.vec3), grid: GridInfo, shift: int, keys: wp.array(dtype=wp.int32),
+def cell_keys(x: wp.array(dtype=wp.vec3), grid: GridInfo, keys: wp.array(dtype=wp.int32),
               slots: wp.array(dtype=wp.int32)):
-    """keys[p] = linear index (z fastest) of the stencil base cell of particle p, or with
-    shift > 0 of its block of 2^shift cells per axis (key_dims); slots[p] = p."""
+    """keys[p] = linear index of the stencil base cell of particle p (z fastest), slots[p] = p."""
     p = wp.tid()
     xg = (x[p] - grid.origin) * grid.inv_dx
-    i = wp.clamp(int(xg[0] - 0.5), 0, grid.dims[0] - 1) >> shift
-    j = wp.clamp(int(xg[1] - 0.5), 0, grid.dims[1] - 1) >> shift
-    k = wp.clamp(int(xg[2] - 0.5), 0, grid.dims[2] - 1) >> shift
-    nj = (grid.dims[1] + (1 << shift) - 1) >> shift
-    nk = (grid.dims[2] + (1 << shift) - 1) >> shift
-    keys[p] = (i * nj + j) * nk + k
+    i = wp.clamp(int(xg[0] - 0.5), 0, grid.dims[0] - 1)
+    j = wp.clamp(int(xg[1] - 0.5), 0, grid.dims[1] - 1)
+    k = wp.clamp(int(xg[2] - 0.5), 0, grid.dims[2] - 1)
+    keys[p] = (i * grid.dims[1] + j) * grid.dims[2] + k
     slots[p] = p
 
 
@@ -80,21 +77,15 @@ for _dtype in (float, wp.int32, wp.vec3, wp.mat33):
                          "dst": wp.array(dtype=_dtype)})
 
 
-def key_dims(dims: tuple[int, int, int], shift: int = 0) -> tuple[int, int, int]:
-    """Cells (shift 0) or blocks of 2^shift cells per axis covering a grid of `dims` nodes."""
-    return tuple((int(d) + (1 << shift) - 1) >> shift for d in dims)  # type: ignore[return-value]
-
-
-def cell_order(x: wp.array, grid: GridInfo, shift: int = 0) -> tuple[wp.array, wp.array]:
+def cell_order(x: wp.array, grid: GridInfo) -> tuple[wp.array, wp.array]:
     """(permutation (N,) int32 that puts the particles at positions `x` in cell order (stable),
-    their cell keys in that order (N,) int32); with shift > 0, blocks of 2^shift cells per axis
-    instead of cells (the block P2G's order, sim/p2g_block.py)."""
+    their cell keys in that order (N,) int32)."""
     n = x.shape[0]
     keys = wp.empty(2 * n, dtype=wp.int32, device=x.device)  # the radix sort needs 2N of each
     slots = wp.empty(2 * n, dtype=wp.int32, device=x.device)
-    wp.launch(cell_keys, dim=n, device=x.device, inputs=[x, grid, shift, keys, slots])
-    kd = key_dims((grid.dims[0], grid.dims[1], grid.dims[2]), shift)
-    bits = max(1, int(kd[0] * kd[1] * kd[2] - 1).bit_length())
+    wp.launch(cell_keys, dim=n, device=x.device, inputs=[x, grid, keys, slots])
+    dims = grid.dims
+    bits = max(1, int(dims[0] * dims[1] * dims[2] - 1).bit_length())
     wp.utils.radix_sort_pairs(keys, slots, n, end_bit=bits)
     return wp.clone(slots[:n]), wp.clone(keys[:n])
 
