@@ -7,7 +7,7 @@ warp) compiles for a given architecture without a driver; the counts are read fr
 memory, or a call stack for the CUDA math library's slow-path helpers (grid_update's 32 B).
 
 Usage:
-    python scripts/sim_kernel_registers.py [--arch 90] [--caps 64]
+    python scripts/sim_kernel_registers.py [--arch 90] [--caps 64] [--p2g-caps 128 80]
 """
 from __future__ import annotations
 
@@ -68,6 +68,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--arch", type=int, default=90, help="SM architecture (90: H100/H200)")
     parser.add_argument("--caps", type=int, nargs="*", default=[64], help="G2P register caps to try")
+    parser.add_argument("--p2g-caps", type=int, nargs="*", default=[128, 80], help="chunked P2G register caps to try")
     args = parser.parse_args()
     import warp as wp
 
@@ -81,7 +82,10 @@ def main() -> None:
                          ("grid_update", kernels.grid_update), ("g2p", kernels.g2p)]:
             compile_and_report(label, k, args.arch, out)
         for cap in args.caps:
-            compile_and_report(f"g2p, cap {cap}", kernels.g2p_kernel(cap), args.arch, out)
+            compile_and_report(f"g2p, cap {cap}", kernels.register_capped(kernels.g2p, cap), args.arch, out)
+        for cap in args.p2g_caps:
+            compile_and_report(f"p2g_chunked, cap {cap}", kernels.register_capped(kernels.p2g_chunked, cap), args.arch,
+                               out)
 
 
 if __name__ == "__main__":

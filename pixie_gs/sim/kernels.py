@@ -242,20 +242,22 @@ def g2p(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtyp
     stress[p] = tau
 
 
-_G2P_CAPPED: dict[int, wp.Kernel] = {}
+_CAPPED: dict[tuple[str, int], wp.Kernel] = {}
 
 
-def g2p_kernel(max_registers: int | None = None) -> wp.Kernel:
-    """`g2p`, or the same function compiled with at most `max_registers` registers per CUDA thread
-    (no effect on the CPU). Why: NVRTC gives g2p 72 registers on sm_90 — 24 resident warps per SM
-    in blocks of 256 threads; at 64 (still no spills, checked in the cubin) 32 warps fit, more
-    loads in flight for a kernel that waits on memory. Opt-in until measured on a GPU."""
+def register_capped(kernel: wp.Kernel, max_registers: int | None) -> wp.Kernel:
+    """`kernel`, or the same function compiled with at most `max_registers` registers per CUDA thread
+    (no effect on the CPU). Why: more resident warps per SM keep more loads in flight in kernels that
+    wait on memory. On sm_90 NVRTC gives `g2p` 72 registers (24 warps per SM in blocks of 256; at 64,
+    still without spills, 32 fit) and `p2g_chunked` 255 with a 16-byte spill (8 warps; at 128, 16
+    warps, at the price of spilling its 27-node sums to local memory). Opt-in until measured on a GPU."""
     if max_registers is None:
-        return g2p
-    if max_registers not in _G2P_CAPPED:
-        _G2P_CAPPED[max_registers] = wp.kernel(g2p.func, enable_backward=False, module="unique",
-                                               cuda_max_registers=int(max_registers))
-    return _G2P_CAPPED[max_registers]
+        return kernel
+    key = (kernel.key, int(max_registers))
+    if key not in _CAPPED:
+        _CAPPED[key] = wp.kernel(kernel.func, enable_backward=False, module="unique",
+                                 cuda_max_registers=int(max_registers))
+    return _CAPPED[key]
 
 
 @wp.kernel

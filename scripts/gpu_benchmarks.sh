@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# The GPU side of issues 14 and 16 on one lent GPU box, in parts that each fit one device call:
+#   tests     the physics, simulator and feature-field tests on CUDA           (~2 min)
+#   sim       MPM throughput at 1M and 4M particles, random input order, the default and the
+#             opt-in variants on the same frames (ratios against the default) (~2 min)
+#   diagnose  the 20k-Gaussian, 2-second diagnose runtime case (target <= 5 s)  (~1 min)
+#   batch     the model process alone, then 1,000 assets of 100k Gaussians in batch mode (>= 10/s)  (~5 min)
+# usage, from the repo root, Warp on PYTHONPATH for tests/sim/diagnose (batch needs none):
+#   OUT=/tmp/gpu scripts/gpu_benchmarks.sh tests sim diagnose   # one call
+#   OUT=/tmp/gpu scripts/gpu_benchmarks.sh batch                # a second call
+# Full logs go to $OUT/<part>.txt; the terminal gets the figures that decide each target.
+set -u -o pipefail
+OUT=${OUT:?set OUT to the output folder}
+mkdir -p "$OUT"
+export PYTHONUNBUFFERED=1
+# what the box lacks (plyfile, trimesh, tqdm) comes from wheels in the ignored .whl folder, if carried
+if ! python3 -c "import plyfile, trimesh, tqdm" 2>/dev/null && ls .whl/*.whl >/dev/null 2>&1; then
+  python3 -m pip install -q --no-index --no-deps --target /tmp/pixie_site .whl/*.whl >"$OUT/wheels.txt" 2>&1
+  export PYTHONPATH=/tmp/pixie_site:${PYTHONPATH:-}
+fi
+export PYTHONPATH=$PWD:${PYTHONPATH:-}
+run_part() {
+  case $1 in
+    tests)
+      PIXIE_TEST_DEVICES=cuda timeout 300 python3 -m pytest -q -p no:cacheprovider tests/test_sim_kernels.py \
+        tests/test_sim_physics.py tests/test_sim_state.py tests/test_sim_batched.py tests/test_sim_rigid.py \
+        tests/test_field_device.py >"$OUT/tests.txt" 2>&1
+      tail -3 "$OUT/tests.txt" ;;
+    sim)
+      timeout 300 python3 benchmarks/bench_sim_throughput.py --device cuda --sizes 1000000 4000000 \
+        --order random sorted --frames 3 --variant auto --variant chunked,inside --variant chunked,g2p=64 \
+        --variant chunked,p2g=128 --variant chunked,p2g=80 --variant chunked,inside,g2p=64,p2g=128 \
+        >"$OUT/sim.txt" 2>&1
+      grep -E "^warp|issue 14|vs baseline" "$OUT/sim.txt" | cut -c1-170 ;;
+    diagnose)
+      timeout 200 python3 benchmarks/bench_diagnose.py --part runtime --device cuda >"$OUT/diagnose.txt" 2>&1
+      grep -E "diagnosis incl|named:" "$OUT/diagnose.txt" ;;
+    batch)
+      timeout 90 python3 benchmarks/bench_model_step.py --count 24 --device cuda --threads 1,2,3 \
+        >"$OUT/model_step.txt" 2>&1
+      tail -6 "$OUT/model_step.txt"
+      timeout 330 python3 benchmarks/bench_batch_annotate.py --count 1000 --gaussians 100000 --device cuda \
+        --pools process --workers 12 --model-threads 3 --loop-files 3 --budget-s 230 >"$OUT/batch.txt" 2>&1
+      tr '\r' '\n' <"$OUT/batch.txt" | grep -E "assets/s|CPU time|byte-identical|threads \(most" | tail -10 ;;
+    *) echo "unknown part $1 (tests, sim, diagnose, batch)"; return 2 ;;
+  esac
+}
+for part in "$@"; do
+  echo "== $part ($(date -u +%H:%M:%S))"
+  run_part "$part" || echo "$part: exit $?"
+done
