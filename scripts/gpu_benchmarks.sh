@@ -22,18 +22,18 @@ export PYTHONPATH=$PWD:${PYTHONPATH:-}
 run_part() {
   case $1 in
     tests)
-      PIXIE_TEST_DEVICES=cuda timeout 300 python3 -m pytest -q -p no:cacheprovider tests/test_sim_kernels.py \
+      PIXIE_TEST_DEVICES=cuda timeout 240 python3 -m pytest -q -p no:cacheprovider tests/test_sim_kernels.py \
         tests/test_sim_physics.py tests/test_sim_state.py tests/test_sim_batched.py tests/test_sim_rigid.py \
         tests/test_field_device.py >"$OUT/tests.txt" 2>&1
       tail -3 "$OUT/tests.txt" ;;
     sim)
-      timeout 300 python3 benchmarks/bench_sim_throughput.py --device cuda --sizes 1000000 4000000 \
+      timeout 240 python3 benchmarks/bench_sim_throughput.py --device cuda --sizes 1000000 4000000 \
         --order random sorted --frames 3 --variant auto --variant chunked,inside --variant chunked,g2p=64 \
         --variant chunked,p2g=128 --variant chunked,p2g=80 --variant chunked,inside,g2p=64,p2g=128 \
         >"$OUT/sim.txt" 2>&1
       grep -E "^warp|issue 14|vs baseline" "$OUT/sim.txt" | cut -c1-170 ;;
     diagnose)
-      timeout 200 python3 benchmarks/bench_diagnose.py --part runtime --device cuda >"$OUT/diagnose.txt" 2>&1
+      timeout 150 python3 benchmarks/bench_diagnose.py --part runtime --device cuda >"$OUT/diagnose.txt" 2>&1
       grep -E "diagnosis incl|named:" "$OUT/diagnose.txt" ;;
     batch)
       timeout 90 python3 benchmarks/bench_model_step.py --count 24 --device cuda --threads 1,2,3 \
