@@ -122,7 +122,7 @@ class KernelTimer:
 
 def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str = "lattice",
               p2g: str = "auto", sort_substeps: int | None = None, frames: int = 1, resort: str = "start",
-              g2p_registers: int | None = None, p2g_registers: int | None = None) -> dict:
+              g2p_registers: int | None = None) -> dict:
     import warp as wp
 
     from pixie_gs.sim.solver import MPMSolver
@@ -131,8 +131,7 @@ def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str
     n = len(particles)
     sort = {} if order == "sorted" else {"sort_every": 0}  # sorted: the solver's default (every frame)
     solver = MPMSolver(particles, scene, device, p2g=p2g, sort_substeps=sort_substeps,
-                       resort_inside=resort == "inside", g2p_max_registers=g2p_registers,
-                       p2g_max_registers=p2g_registers, **sort)
+                       resort_inside=resort == "inside", g2p_max_registers=g2p_registers, **sort)
     dt = float(solver.dt)
     # step_frame(k·dt) runs k substeps of the CFL dt (the solver's own counter says how many)
     solver.step_frame(warmup * dt * (1 - 1e-6))
@@ -171,7 +170,7 @@ def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str
             "rate": float(np.mean(frame_rates)), "frame_rates": frame_rates,
             "sort_substeps": solver.sort_substeps if solver.sort_every > 0 and solver.p2g_kind != "atomic" else None,
             "resort": resort if solver.sort_every > 0 and solver.p2g_kind != "atomic" else "",
-            "g2p_registers": g2p_registers, "p2g_registers": p2g_registers, "bytes_particle_state": pp / n, "bytes_all_per_particle": total / n,
+            "g2p_registers": g2p_registers, "bytes_particle_state": pp / n, "bytes_all_per_particle": total / n,
             "dt": dt, "host": host, "kernels": kernels, "reduction_s": reduction_s, "sort_s": sort_s}
 
 
@@ -246,11 +245,11 @@ def time_numpy(n_target: int, substeps: int) -> dict:
             "rate": n * substeps / seconds}
 
 
-def parse_variant(text: str) -> tuple[str, int, str, int | None, int | None]:
-    """'KIND[,sort=K][,inside][,g2p=R][,p2g=R]' → (P2G kind, re-sort interval (0: default), "start" or
-    "inside", G2P register cap or None, chunked-P2G register cap or None)."""
+def parse_variant(text: str) -> tuple[str, int, str, int | None]:
+    """'KIND[,sort=K][,inside][,g2p=R]' → (P2G kind, re-sort interval (0: default), "start" or
+    "inside", G2P register cap or None)."""
     kind, *opts = text.split(",")
-    k_sort, resort, regs, p2g_regs = 0, "start", None, None
+    k_sort, resort, regs = 0, "start", None
     for opt in opts:
         if opt == "inside":
             resort = "inside"
@@ -258,13 +257,11 @@ def parse_variant(text: str) -> tuple[str, int, str, int | None, int | None]:
             k_sort = int(opt[5:])
         elif opt.startswith("g2p="):
             regs = int(opt[4:])
-        elif opt.startswith("p2g="):
-            p2g_regs = int(opt[4:])
         else:
             raise SystemExit(f"--variant {text!r}: unknown option {opt!r}")
     if kind not in ("auto", "chunked", "atomic"):
         raise SystemExit(f"--variant {text!r}: unknown P2G kind {kind!r}")
-    return kind, k_sort, resort, regs, p2g_regs
+    return kind, k_sort, resort, regs
 
 
 def main() -> None:
@@ -286,12 +283,11 @@ def main() -> None:
     parser.add_argument("--resort", nargs="+", default=["start"], choices=["start", "inside"],
                         help="sorted order, chunked P2G: the frame's array re-sort at the frame start (the "
                              "solver's default) or inside the frame in place of an index sort (resort_inside)")
-    parser.add_argument("--variant", action="append", default=[], metavar="KIND[,sort=K][,inside][,g2p=R][,p2g=R]",
+    parser.add_argument("--variant", action="append", default=[], metavar="KIND[,sort=K][,inside][,g2p=R]",
                         help="a sorted-order variant (repeatable; replaces the --p2g x --sort-substeps x "
                              "--resort product for the sorted order): P2G kind, in-frame index re-sort "
                              "interval K, array re-sort inside the frame, G2P compiled with at most R "
-                             "registers per CUDA thread, the chunked P2G with at most R; e.g. "
-                             "chunked,sort=16,inside,g2p=64,p2g=128")
+                             "registers per CUDA thread; e.g. chunked,sort=16,inside,g2p=64")
     parser.add_argument("--frames", type=int, default=1,
                         help="timed frames of --substeps each, one after the other (each printed, mean reported)")
     args = parser.parse_args()
@@ -314,20 +310,18 @@ def main() -> None:
     def label(r: dict) -> str:
         return f"P2G {r['p2g']}" + (f" re-sort/{r['sort_substeps']}" if r["sort_substeps"] else "") + \
             (" array sort inside" if r["resort"] == "inside" else "") + \
-            (f" G2P {r['g2p_registers']} regs" if r["g2p_registers"] else "") + \
-            (f" P2G {r['p2g_registers']} regs" if r["p2g_registers"] else "")
+            (f" G2P {r['g2p_registers']} regs" if r["g2p_registers"] else "")
 
     for n in args.sizes:
-        runs = [(o, k, s, r, None, None) for o in args.order for k in args.p2g for s in args.sort_substeps for r in args.resort
+        runs = [(o, k, s, r, None) for o in args.order for k in args.p2g for s in args.sort_substeps for r in args.resort
                 if not (args.variant and o == "sorted")]
         runs += [("sorted", *parse_variant(v)) for v in args.variant if "sorted" in args.order]
-        for order, p2g, k_sort, resort, g2p_registers, p2g_registers in runs:
+        for order, p2g, k_sort, resort, g2p_registers in runs:
             resorts = order == "sorted" and (p2g == "chunked" or (p2g == "auto" and device != "cpu"))
-            if (k_sort != args.sort_substeps[0] or resort != args.resort[0]) and not resorts and g2p_registers is None \
-                    and p2g_registers is None:
+            if (k_sort != args.sort_substeps[0] or resort != args.resort[0]) and not resorts and g2p_registers is None:
                 continue  # no in-frame re-sort to vary
             r = time_warp(n, device, args.warmup, substeps, order, p2g, k_sort or None, args.frames, resort,
-                          g2p_registers, p2g_registers)
+                          g2p_registers)
             results.append(r)
             cpu_rate = f" [{r['n'] * r['substeps'] / r['cpu_seconds'] / 1e6:.3f} M per process-CPU s]" \
                 if device == "cpu" and r["cpu_seconds"] > 0 else ""

@@ -29,8 +29,7 @@ run_part() {
     sim)
       timeout 240 python3 benchmarks/bench_sim_throughput.py --device cuda --sizes 1000000 4000000 \
         --order random sorted --frames 3 --variant auto --variant chunked,inside --variant chunked,g2p=64 \
-        --variant chunked,p2g=128 --variant chunked,p2g=80 --variant chunked,inside,g2p=64,p2g=128 \
-        >"$OUT/sim.txt" 2>&1
+        --variant chunked,inside,g2p=64 >"$OUT/sim.txt" 2>&1
       grep -E "^warp|issue 14|vs baseline" "$OUT/sim.txt" | cut -c1-170 ;;
     diagnose)
       timeout 150 python3 benchmarks/bench_diagnose.py --part runtime --device cuda >"$OUT/diagnose.txt" 2>&1

@@ -169,10 +169,9 @@ def test_sorted_and_unsorted_runs_agree(device):
 
 
 def scatter(sim: MPMSolver, kernel: str, runs: np.ndarray | None = None,
-            index: np.ndarray | None = None, max_registers: int | None = None) -> tuple[np.ndarray, ...]:
+            index: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """(grid mass, momentum, fixed weight) after one P2G of `kernel`: "atomic", or "chunked" with
-    one thread per run (`runs`: run starts followed by N) over particles index[i] (default: i),
-    compiled with at most `max_registers` registers per CUDA thread."""
+    one thread per run (`runs`: run starts followed by N) over particles index[i] (default: i)."""
     import warp as wp
 
     from pixie_gs.sim import kernels
@@ -187,8 +186,7 @@ def scatter(sim: MPMSolver, kernel: str, runs: np.ndarray | None = None,
         count = wp.array([len(runs) - 1], dtype=wp.int32, device=d)
         index = np.arange(sim.n) if index is None else index
         order = wp.array(np.asarray(index, np.int32), dtype=wp.int32, device=d)
-        wp.launch(kernels.register_capped(kernels.p2g_chunked, max_registers), dim=sim.n, device=d,
-                  inputs=inputs + [starts, count, order] + out)
+        wp.launch(kernels.p2g_chunked, dim=sim.n, device=d, inputs=inputs + [starts, count, order] + out)
     return tuple(a.numpy() for a in out)
 
 
@@ -302,23 +300,3 @@ def test_register_capped_g2p_matches_g2p(device):
         assert np.abs(a - b).max() <= 1e-6 * max(1.0, np.abs(a).max()), name
     assert MPMSolver(mixed_block(scene), scene, device, sort_every=0, g2p_max_registers=64)._g2p.kernel is capped
 
-
-def test_register_capped_chunked_p2g_matches_the_chunked_one(device):
-    """The chunked P2G compiled with a register cap (its 27-node sums spill on a GPU) scatters the same
-    grid as the uncapped one and as the plain atomic reference; the solver option picks it."""
-    from pixie_gs.sim import kernels
-
-    scene = scene_for_tests()
-    sim = MPMSolver(mixed_block(scene), scene, device, sort_every=1)
-    rng = np.random.default_rng(5)
-    sim.C.assign(rng.normal(0.0, 1.0, (sim.n, 3, 3)).astype(np.float32))
-    sim.stress.assign(rng.normal(0.0, 100.0, (sim.n, 3, 3)).astype(np.float32))
-    own = sim.run_start.numpy()[:sim.n_runs + 1]
-    reference = scatter(sim, "atomic")
-    plain = scatter(sim, "chunked", own)
-    capped = scatter(sim, "chunked", own, max_registers=128)
-    for a, b, c in zip(reference, plain, capped):
-        assert np.abs(b - c).max() <= 1e-6 * max(1.0, np.abs(b).max())  # the same code, other registers
-        assert np.abs(a - c).max() <= 1e-5 * np.abs(a).max()
-    solver = MPMSolver(mixed_block(scene), scene, device, sort_every=1, p2g="chunked", p2g_max_registers=128)
-    assert solver._p2g.kernel is kernels.register_capped(kernels.p2g_chunked, 128)

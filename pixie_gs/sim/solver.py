@@ -99,8 +99,8 @@ class MPMSolver:
     unsorted runs agree to float rounding. `resort_inside`: with the chunked P2G, a frame's
     re-sort of the arrays replaces its first in-frame index sort from substep RESORT_SUBSTEP on,
     instead of running at the frame start, where the device waits while the host issues it.
-    `g2p_max_registers`, `p2g_max_registers`: compile G2P / the chunked P2G with at most this many
-    registers per CUDA thread (kernels.register_capped; None: the compiler's choice).
+    `g2p_max_registers`: compile G2P with at most this many registers per CUDA thread
+    (kernels.register_capped; None: the compiler's choice).
     The Warp arrays (x, v, F, ...) are in slot order; use the accessors for the caller's order.
     `p2g`: "chunked" (one thread per run of same-cell particles sums them before touching the
     grid, kernels.p2g_chunked), "atomic" (one global atomic per particle and node, kernels.p2g, the
@@ -110,7 +110,7 @@ class MPMSolver:
 
     def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int | None = None,
                  p2g: str = "auto", sort_substeps: int | None = None, resort_inside: bool = False,
-                 g2p_max_registers: int | None = None, p2g_max_registers: int | None = None) -> None:
+                 g2p_max_registers: int | None = None) -> None:
         particles.validate()
         self.scene = scene
         self.device = resolve_warp_device(device)
@@ -138,7 +138,6 @@ class MPMSolver:
             raise ValueError(f"sort_substeps must be >= 1, got {sort_substeps!r}")
         self.resort_inside = bool(resort_inside)
         self.g2p_max_registers = g2p_max_registers
-        self.p2g_max_registers = p2g_max_registers
         self.timing: dict[str, float] = {}
         self.kernel_timer = None
         self._impulse_done = [False] * len(scene.impulses)
@@ -529,8 +528,7 @@ class MPMSolver:
                            self.grid_info, 0.0]
         grid_outputs = [self.grid_mass, self.grid_momentum, self.grid_fixed]
         if self.p2g_kind == "chunked":
-            self._p2g = wp.launch(kernels.register_capped(kernels.p2g_chunked, self.p2g_max_registers), dim=self.n,
-                                  device=d, record_cmd=True,
+            self._p2g = wp.launch(kernels.p2g_chunked, dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + [self.run_start, self.run_count, self._p2g_index]
                                   + grid_outputs)
         else:
