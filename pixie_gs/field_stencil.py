@@ -248,7 +248,19 @@ def _torch_sums(means, covariances, alphas, features, n, filter_voxels, cutoff_s
     cut2 = cutoff_sigma ** 2
     start = 0
     for k, cnt in zip(keys.tolist(), counts.tolist()):  # one host sync for the group table
-        start = _add_group(acc, k, cnt, start, order, coef, base_flat, weighted, np_, chunk, cut2, dev, torch)
+        off_np = _group_offsets(k)
+        off = torch.as_tensor(off_np, device=dev)
+        basis = torch.as_tensor(_basis(off_np), device=dev)
+        off_flat = (off[:, 0] * np_ + off[:, 1]) * np_ + off[:, 2]
+        per = max(1, chunk // len(off_np))
+        for c0 in range(start, start + cnt, per):
+            g = order[c0:min(start + cnt, c0 + per)]
+            maha = coef[g] @ basis
+            gi, ki = torch.nonzero(maha <= cut2, as_tuple=True)
+            gg = g[gi]
+            w = torch.exp(-0.5 * maha[gi, ki])
+            add_rows_in_order(acc, base_flat[gg] + off_flat[ki], w[:, None] * weighted[gg])
+        start += cnt
     return acc
 
 
@@ -265,19 +277,3 @@ def add_rows_in_order(acc, index, values) -> None:
     else:
         acc.index_add_(0, index, values)
 
-
-def _add_group(acc, k, cnt, start, order, coef, base_flat, weighted, np_, chunk, cut2, dev, torch) -> int:
-    """Adds the Gaussians order[start:start+cnt] of stencil group `k` into `acc`; returns the next start."""
-    off_np = _group_offsets(k)
-    off = torch.as_tensor(off_np, device=dev)
-    basis = torch.as_tensor(_basis(off_np), device=dev)
-    off_flat = (off[:, 0] * np_ + off[:, 1]) * np_ + off[:, 2]
-    per = max(1, chunk // len(off_np))
-    for c0 in range(start, start + cnt, per):
-        g = order[c0:min(start + cnt, c0 + per)]
-        maha = coef[g] @ basis
-        gi, ki = torch.nonzero(maha <= cut2, as_tuple=True)
-        gg = g[gi]
-        w = torch.exp(-0.5 * maha[gi, ki])
-        add_rows_in_order(acc, base_flat[gg] + off_flat[ki], w[:, None] * weighted[gg])
-    return start + cnt

@@ -452,15 +452,19 @@ class BatchedSolver:
                 f"‖F‖ ≤ {MAX_STRETCH:g}); lower solver.cfl or check E/nu/density")
 
     # ------------------------------------------------------------------ results
+    def _host_positions(self) -> np.ndarray:
+        """Every particle's position on the host: the copy fetched with this frame's statistics when
+        there is one (GPU, `fetch_positions`), else read from the device now."""
+        return self._x_host if self._x_frame == self.frame and self._x_host is not None else self.state.x.numpy()
+
     def positions(self, r: int | None = None) -> np.ndarray:
         """Positions (N_r,3) float32 world m of run r (None: every particle, run after run)."""
-        x = self._x_host if self._x_frame == self.frame and self._x_host is not None else self.state.x.numpy()
+        x = self._host_positions()
         return x.copy() if r is None else x[self.offsets[r]:self.offsets[r + 1]].copy()
 
     def positions_at(self, slots: np.ndarray) -> np.ndarray:
         """Positions (len(slots),3) float32 world m of the given particle slots (all runs' numbering)."""
-        x = self._x_host if self._x_frame == self.frame and self._x_host is not None else self.state.x.numpy()
-        return x[slots]
+        return self._host_positions()[slots]
 
     def deformation_gradients(self, r: int) -> np.ndarray:
         """F (N_r,3,3) float32 of run r."""
