@@ -13,6 +13,8 @@ ABLATIONS=${ABLATIONS:-1}          # 0: train only the full model (it gets the w
 DEVICE=${DEVICE:-cuda}; WORKERS=${WORKERS:-16}; TOTAL_S=${TOTAL_S:-570}
 DATA=${DATA:-/tmp/pixie_data}; SEED=${SEED:-1}
 EXTRA_TRAIN_ARGS=${EXTRA_TRAIN_ARGS:-}
+LOAD_S=${LOAD_S:-90}               # time allowed for reading the dataset before training starts
+RESERVE_S=${RESERVE_S:-165}        # kept back from TOTAL_S for loading and the test evaluation
 export PYTHONUNBUFFERED=1 OMP_NUM_THREADS=${OMP_NUM_THREADS:-4}
 P="python3 -m pixie_gs.cli.main"
 LOG=$OUT/log.txt
@@ -40,14 +42,14 @@ done
 rm -rf "$DATA/parts"
 du -sh "$DATA" >>"$LOG"
 NOW=$(elapsed)
-FULL_BUDGET=$(( TOTAL_S - NOW - 165 ))           # leave time for loading (~70 s) + test evaluation (~60 s)
+FULL_BUDGET=$(( TOTAL_S - NOW - RESERVE_S ))     # leave time for loading + test evaluation
 ABL_BUDGET=$(( FULL_BUDGET * 45 / 100 ))
 [ "$ABLATIONS" = 0 ] && ABL_BUDGET=0
 [ $FULL_BUDGET -lt 30 ] && { say "no time left to train ($FULL_BUDGET s)"; exit 1; }
 say "training: full budget ${FULL_BUDGET} s, ablations ${ABL_BUDGET} s each"
 train() {  # name inputs budget extra-args...
   local name=$1 inputs=$2 budget=$3; shift 3
-  timeout $(( budget + 90 )) $P train "$DATA" --out "$OUT/$name.pt" --device $DEVICE --epochs 200 \
+  timeout $(( budget + LOAD_S )) $P train "$DATA" --out "$OUT/$name.pt" --device $DEVICE --epochs 200 \
     --time-budget-s $budget --inputs $inputs --workers $WORKERS --log "$OUT/train_$name.json" -q "$@" $EXTRA_TRAIN_ARGS \
     >>"$LOG" 2>&1 && say "trained $name" || say "train $name failed"
   timeout 120 $P evaluate "$OUT/$name.pt" "$DATA" --split test --device $DEVICE --workers $WORKERS -q \

@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# A training run longer than one device call (each call ends within 10 minutes; a warm machine keeps its
+# processes and files for ~30 s after a call, so back-to-back calls see the same run):
+#   start   install the wheels carried in .whl_model (plyfile, trimesh, tqdm), launch
+#           scripts/gpu_train_default.sh detached (setsid, survives the call) with its output in $RUN,
+#           then watch it
+#   watch   watch the run again
+# Each call returns after WATCH_S seconds or when the run ends, whichever comes first, and copies the
+# run's checkpoint, its training state, the per-epoch log and the test evaluation into $OUT, so a machine
+# lost between calls costs only the time since the last copy. The run's options are the environment of
+# gpu_train_default.sh (TOTAL_S, TRAIN_TIERS, EXTRA_TRAIN_ARGS, …), given to `start`.
+# usage (repo root, device call):  RUN=/root/run WATCH_S=540 OUT=$OUT scripts/gpu_train_chain.sh start
+#                                  RUN=/root/run WATCH_S=570 OUT=$OUT scripts/gpu_train_chain.sh watch
+# CPU smoke test: RUN=/tmp/r WATCH_S=120 DEVICE=cpu WORKERS=2 TOTAL_S=300 TRAIN_TIERS='26:2000' VAL_TIERS='8:2000' \
+#   TEST_TIERS='8:2000' EXTRA_TRAIN_ARGS='--resolution 32 --base-channels 8' OUT=/tmp/o scripts/gpu_train_chain.sh start
+set -u -o pipefail
+mode=${1:?usage: gpu_train_chain.sh start|watch}
+OUT=${OUT:?set OUT to the folder that comes back}
+RUN=${RUN:-/root/run}
+WATCH_S=${WATCH_S:-540}
+T0=$(date +%s)
+mkdir -p "$OUT"
+
+if [ "$mode" = start ]; then
+  mkdir -p "$RUN"
+  if ! python3 -c "import plyfile, trimesh, tqdm" 2>/dev/null; then
+    python3 -m pip install -q --no-index --no-deps --target "$RUN/site" .whl_model/*.whl >"$RUN/wheels.txt" 2>&1 \
+      || { echo "wheel install failed"; cat "$RUN/wheels.txt"; exit 1; }
+    export PYTHONPATH=$RUN/site:${PYTHONPATH:-}
+  fi
+  export PYTHONPATH=$PWD:${PYTHONPATH:-}
+  nvidia-smi --query-gpu=name,memory.total --format=csv,noheader 2>/dev/null
+  OUT=$RUN setsid nohup bash scripts/gpu_train_default.sh >"$RUN/daemon.txt" 2>&1 < /dev/null &
+  echo $! >"$RUN/pid"
+  echo "started run in $RUN (pid $(cat "$RUN/pid"))"
+elif [ "$mode" != watch ]; then
+  echo "unknown mode $mode (start, watch)"; exit 2
+fi
+
+running() { kill -0 "$(cat "$RUN/pid" 2>/dev/null)" 2>/dev/null; }
+snapshot() {
+  for f in pixie_default.pt pixie_default.pt.state.pt train_pixie_default.json train_logs.json eval_pixie_default.json log.txt daemon.txt; do
+    [ -f "$RUN/$f" ] && cp "$RUN/$f" "$OUT/"
+  done
+  python3 - "$RUN" <<'PY' || true
+import json, pathlib, sys
+run = pathlib.Path(sys.argv[1])
+for name in ("train_pixie_default.json", "train_logs.json"):
+    p = run / name
+    if p.exists():
+        d = json.loads(p.read_text())
+        meta = d.get("meta", d.get("pixie_default", {}).get("meta", {}))
+        for h in meta.get("history", []):
+            print("epoch", h.get("epoch"), {k: (round(v, 4) if isinstance(v, float) else v) for k, v in h.items()
+                                              if k in ("elapsed_s", "train_loss", "val_loss", "train_objects_per_s", "val_accuracy", "val_mse_avg")})
+        break
+PY
+}
+while running && [ $(( $(date +%s) - T0 )) -lt "$WATCH_S" ]; do sleep 10; done
+snapshot
+tail -5 "$RUN/log.txt" 2>/dev/null
+running && echo "run still going after $(( $(date +%s) - T0 )) s of this call" || echo "run finished"
