@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from pixie_gs.cli.main import main
+from pixie_gs.dataset.assemble import build_object
 from pixie_gs.dataset.generate import SPLITS, class_for_index, object_seed
 from pixie_gs.dataset.labels import (ClassSpec, check_object_labels, load_class_table, parse_constraint,
                                      sample_part_values)
@@ -103,15 +104,44 @@ def test_index_file_and_preview(dataset):
 
 
 def test_shells_are_hollow_and_piles_are_filled(dataset):
-    interior_share = {}
+    """Shells never have interior Gaussians; piles and solid toys are filled unless the object was drawn
+    surface-only like a capture (the record says which), and then they have none."""
+    interior_share, surface_only = {}, {}
     for path in list_objects(dataset, "train"):
         cloud, meta = load_object(path)
         normal = np.stack([cloud.get("nx"), cloud.get("ny"), cloud.get("nz")], axis=1)
         interior_share.setdefault(meta["class"], []).append(float((np.abs(normal).sum(axis=1) == 0).mean()))
+        surface_only.setdefault(meta["class"], []).append(meta["realism"]["surface_only"])
     for hollow in ("soda_cans", "metal_crates", "sport_balls"):
         assert max(interior_share[hollow]) == 0.0, hollow
-    for filled in ("sand", "snow_mud", "rubber_ducks_toys"):
-        assert min(interior_share[filled]) > 0.4, filled
+    for filled in ("sand", "snow_mud", "rubber_ducks_toys", "stones", "bread"):
+        for share, only_surface in zip(interior_share[filled], surface_only[filled]):
+            assert (share == 0.0) if only_surface else (share > 0.4), filled
+    clean, _ = build_object(TABLE["sand"], 3, 3000)  # the clean converter output keeps its fill
+    assert float((np.abs(np.stack([clean.get(c) for c in ("nx", "ny", "nz")], 1)).sum(1) == 0).mean()) > 0.4
+
+
+def test_capture_like_objects_are_mostly_surface_only_and_textured():
+    """Over many seeds: about SURFACE_ONLY_SHARE of realistic objects have no interior Gaussians, and
+    textured parts get more colour variation than the same part untextured (labels untouched)."""
+    from pixie_gs.dataset.realism import SURFACE_ONLY_SHARE, _textured_rgb
+
+    draws = [build_object(TABLE["stones"], seed, 600, realistic=True)[1]["realism"] for seed in range(40)]
+    share = np.mean([d["surface_only"] for d in draws])
+    assert abs(share - SURFACE_ONLY_SHARE) < 0.2, share
+    assert sum(d["textured_parts"] > 0 for d in draws) >= 8
+    rng = np.random.default_rng(0)
+    p = rng.uniform(0, 1, (4000, 3))
+    part = (p[:, 0] > 0.5).astype(np.int32)
+    flat = np.full((4000, 3), 0.5)
+    spreads = []
+    for seed in range(12):
+        out, n = _textured_rgb(flat, p, part, np.random.default_rng(seed))
+        assert out.shape == flat.shape and 0.0 <= out.min() and out.max() <= 1.0
+        changed = [pid for pid in (0, 1) if np.ptp(out[part == pid]) > 0.05]
+        assert len(changed) == n  # exactly the textured parts vary
+        spreads.append(n)
+    assert 0 < np.mean(spreads) < 2
 
 
 def test_plausible_colours(dataset):

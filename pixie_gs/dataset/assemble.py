@@ -15,7 +15,7 @@ from ..errors import InputError
 from ..splat import SplatCloud
 from .labels import ClassSpec, choose_parts, sample_part_values
 from .primitives import rotation_z
-from .realism import capture_like
+from .realism import capture_like, draw_surface_only
 from . import household  # noqa: F401  (registers the everyday-object recipes)
 from .shapes import RECIPES, Piece
 
@@ -81,6 +81,10 @@ def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int, realistic:
     transform[:3, :3] = scale * rotation_z(yaw)
     for piece in pieces:
         piece.mesh.apply_transform(transform)
+    surface_only = realistic and draw_surface_only(rng)
+    if surface_only:  # a trained capture holds only what cameras see: the whole budget goes to the surface
+        for piece in pieces:
+            piece.fill = False
 
     clouds, part_ids = [], []
     for piece, (n_surface, n_fill) in zip(pieces, allocate_counts(pieces, total)):
@@ -128,5 +132,5 @@ def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int, realistic:
         "shape": shape,
     }
     if realism is not None:
-        record["realism"] = realism.to_dict()
+        record["realism"] = {**realism.to_dict(), "surface_only": surface_only}
     return cloud, record

@@ -5,7 +5,11 @@ captures (benchmarks/bench_splat_stats.py, docs/real_vs_generated.md) spread opa
 0.99 (median ≈ 0.3), have log10 anisotropy ≈ 0.4–2.5, twice the colour noise, needles and oversized
 Gaussians, view-dependent colour (f_rest), unseen undersides, a few floaters and a small tilt left
 by up-estimation. `capture_like` applies all of these, drawing everything from the object's RNG so
-that objects stay deterministic per seed. Labels follow the Gaussians (floaters copy the labels of
+that objects stay deterministic per seed. Two more gaps between converted meshes and captures: a
+capture holds surfaces only (3DGS optimises what the cameras see; a converted mesh is filled only on
+request), so most objects are drawn surface-only (`draw_surface_only`, before the Gaussian budget is
+split); and real surfaces carry texture (glaze patterns, labels, sprinkles, grain) rather than one
+colour per part, so many objects get procedural bands, blotches or speckles on some parts. Labels follow the Gaussians (floaters copy the labels of
 their nearest Gaussian), so every part keeps constant values.
 """
 from __future__ import annotations
@@ -33,6 +37,10 @@ FLOATER_SHARE = (0.0, 0.04)
 TILT_STD_DEG = 6.0  # residual up error left by preparation, capped at TILT_MAX_DEG
 TILT_MAX_DEG = 20.0
 MIN_KEEP_PER_PART = 16
+SURFACE_ONLY_SHARE = 0.85  # objects without interior Gaussians, like every capture (the rest keep their fill)
+TEXTURE_SHARE = 0.6  # objects with procedural texture on some parts
+TEXTURE_PART_SHARE = 0.7  # of their parts, the share that is textured
+TEXTURE_KINDS = ("bands", "blotches", "speckle")
 
 
 @dataclass
@@ -45,11 +53,61 @@ class RealismRecord:
     dropped: int
     floaters: int
     tilt_deg: float
+    textured_parts: int = 0
 
     def to_dict(self) -> dict:
         return {"opacity_mode": self.opacity_mode, "sh_degree": self.sh_degree,
                 "sh_energy": round(self.sh_energy, 4), "dropped": self.dropped, "floaters": self.floaters,
-                "tilt_deg": round(self.tilt_deg, 3)}
+                "tilt_deg": round(self.tilt_deg, 3), "textured_parts": self.textured_parts}
+
+
+def draw_surface_only(rng: np.random.Generator) -> bool:
+    """Whether this object is built without interior (fill) Gaussians, as a trained capture is."""
+    return bool(rng.random() < SURFACE_ONLY_SHARE)
+
+
+def _texture_weight(p: np.ndarray, kind: str, rng: np.random.Generator) -> np.ndarray:
+    """Per-Gaussian mix weight in [0, 1] of a second colour over the points `p` (N,3) of one part."""
+    lo, hi = p.min(0), p.max(0)
+    ext = float(np.linalg.norm(hi - lo)) + 1e-9
+    if kind == "bands":  # stripes and glaze bands: a sharpened sinusoid along one direction (often the height)
+        d = np.array([0.0, 0.0, 1.0]) if rng.random() < 0.5 else rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        phase = 2 * math.pi * rng.uniform(2, 15) * (p @ d) / ext + rng.uniform(0, 2 * math.pi)
+        return 1.0 / (1.0 + np.exp(-rng.uniform(1, 10) * np.sin(phase)))
+    if kind == "blotches":  # painted motifs, stains, grain knots: soft spots around random surface points
+        k = int(rng.integers(3, 31))
+        centres = p[rng.integers(0, len(p), k)]
+        radii = rng.uniform(0.03, 0.2, k) * ext
+        w = np.zeros(len(p))
+        for c, r in zip(centres, radii):
+            w = np.maximum(w, np.exp(-np.sum((p - c) ** 2, axis=1) / r ** 2))
+        return w
+    return (rng.random(len(p)) < rng.uniform(0.02, 0.2)).astype(np.float64)  # speckle: sprinkles, flecks
+
+
+def _textured_rgb(rgb: np.ndarray, p: np.ndarray, part_id: np.ndarray, rng: np.random.Generator
+                  ) -> tuple[np.ndarray, int]:
+    """`rgb` (N,3) with procedural texture on a random share of the parts; and how many parts got one."""
+    out = rgb.astype(np.float64).copy()
+    textured = 0
+    for pid in np.unique(part_id):
+        if rng.random() >= TEXTURE_PART_SHARE:
+            continue
+        sel = np.nonzero(part_id == pid)[0]
+        kind = TEXTURE_KINDS[int(rng.integers(len(TEXTURE_KINDS)))]
+        w = _texture_weight(p[sel].astype(np.float64), kind, rng) * rng.uniform(0.5, 1.0)
+        base = out[sel].mean(0)
+        if rng.random() < 0.5:  # a contrasting colour
+            second = rng.random(3)
+        else:  # a darker or lighter shade of the part's own colour
+            second = np.clip(base * rng.choice([rng.uniform(0.25, 0.7), rng.uniform(1.3, 2.0)]), 0.0, 1.0)
+        if kind == "speckle" and rng.random() < 0.5:  # multicoloured sprinkles
+            palette = rng.random((int(rng.integers(2, 6)), 3))
+            second = palette[rng.integers(0, len(palette), len(sel))]
+        out[sel] = out[sel] * (1.0 - w[:, None]) + np.asarray(second) * w[:, None]
+        textured += 1
+    return np.clip(out, 0.0, 1.0), textured
 
 
 def _keep_mask(cloud: SplatCloud, part_id: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -127,12 +185,15 @@ def capture_like(cloud: SplatCloud, part_id: np.ndarray, rng: np.random.Generato
     logit[big | floater] -= rng.uniform(1.0, 3.0, int((big | floater).sum()))
     cloud.opacity_logits = np.clip(logit, -7.0, 7.0).astype(np.float32)
 
-    # colour noise on the DC term (RGB = 0.5 + C0·dc)
-    sigma = rng.uniform(*COLOUR_NOISE)
-    if sigma > 0:
-        from ..splat import rgb_to_sh_dc
+    # texture, then colour noise, on the DC term (RGB = 0.5 + C0·dc)
+    from ..splat import rgb_to_sh_dc
 
-        rgb = np.clip(cloud.rgb() + rng.normal(0.0, sigma, (n, 3)), 0.0, 1.0)
+    rgb, textured = cloud.rgb(), 0
+    if rng.random() < TEXTURE_SHARE:
+        rgb, textured = _textured_rgb(rgb, cloud.means, part_id, rng)
+    sigma = rng.uniform(*COLOUR_NOISE)
+    if sigma > 0 or textured:
+        rgb = np.clip(rgb + rng.normal(0.0, sigma, (n, 3)), 0.0, 1.0)
         cloud.sh_dc = rgb_to_sh_dc(rgb.astype(np.float32)).astype(np.float32)
 
     # view-dependent colour: f_rest of degree 1–3 with a per-object energy
@@ -160,4 +221,4 @@ def capture_like(cloud: SplatCloud, part_id: np.ndarray, rng: np.random.Generato
                 nrm = np.stack([cloud.get(c) for c in names], 1) @ R.T
                 for j, c in enumerate(names):
                     cloud.set(c, nrm[:, j].astype(np.float32))
-    return cloud, part_id, RealismRecord(mode, degree, energy, dropped, n_float, angle)
+    return cloud, part_id, RealismRecord(mode, degree, energy, dropped, n_float, angle, textured)
