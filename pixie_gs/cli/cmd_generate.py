@@ -28,6 +28,9 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
                    help="also write a contact sheet: up to two objects per class, by RGB and by material")
     p.add_argument("--table", metavar="JSON", default=None,
                    help="class table to use instead of the packaged pixie_gs/data/classes.json")
+    p.add_argument("--clean", action="store_true",
+                   help="objects exactly as `pixie convert` writes a mesh (one opacity, no texture, noise, "
+                        "floaters or tilt) instead of capture-like ones")
     p.add_argument("--force", action="store_true", help="replace an existing split")
     p.set_defaults(func=run)
     return p
@@ -48,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     stage(f"generating {args.count} {args.split} objects into {args.out_dir} ({args.workers} workers)")
     split_dir = generate_split(args.out_dir, args.count, classes=classes, seed=args.seed, split=args.split,
                                workers=args.workers, n_gaussians=args.gaussians, table_path=args.table,
-                               force=args.force)
+                               force=args.force, realistic=not args.clean)
     stage(f"wrote {split_dir}/index.json")
     if args.preview:
         shown = write_preview(args.out_dir, args.split, args.preview)
