@@ -74,12 +74,13 @@ def main() -> None:
 
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
-    from pixie_gs.sim import kernels
+    from pixie_gs.sim import kernels, p2g_column
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
         for label, k in [("p2g (atomic)", kernels.p2g), ("p2g_chunked", kernels.p2g_chunked),
-                         ("grid_update", kernels.grid_update), ("g2p", kernels.g2p)]:
+                         ("p2g_column", p2g_column.p2g_column), ("grid_update", kernels.grid_update),
+                         ("grid_update_packed", p2g_column.grid_update_packed), ("g2p", kernels.g2p)]:
             compile_and_report(label, k, args.arch, out)
         for cap in args.caps:
             compile_and_report(f"g2p, cap {cap}", kernels.register_capped(kernels.g2p, cap), args.arch, out)

@@ -26,7 +26,7 @@ from ..devices import resolve_warp_device  # noqa: E402
 from ..errors import ComputationError, InputError
 from ..materials import MATERIAL_NAMES, METAL, SNOW, STATIONARY, VISCOPLASTIC
 from ..progress import stage
-from . import kernels
+from . import kernels, p2g_column
 from .constitutive import NO_YIELD
 from .particles import Particles
 from .reduce import FrameStats, StatsReducer, reference_stats
@@ -38,6 +38,7 @@ from .state import ARRAY_FIELDS, State
 CHUNK = 8  # particles per P2G thread while the particles are in no cell order (sort_every = 0)
 SORT_SUBSTEPS = 4  # with sorting on, the chunked P2G's cell order is refreshed every this many substeps
 RESORT_SUBSTEP = 16  # resort_inside: the frame's array re-sort goes in at the first index sort from this substep
+COLUMN_RUN = 32  # p2g="column": particles per run at most (a run is one column of cells along z)
 SORT_MIN_PARTICLES = 50_000  # on a GPU, smaller runs fit in cache and are launch-bound: no sorting
 
 FAR = 1.0e30  # "unbounded" for regions and time windows passed to kernels
@@ -104,13 +105,18 @@ class MPMSolver:
     The Warp arrays (x, v, F, ...) are in slot order; use the accessors for the caller's order.
     `p2g`: "chunked" (one thread per run of same-cell particles sums them before touching the
     grid, kernels.p2g_chunked), "atomic" (one global atomic per particle and node, kernels.p2g, the
-    plain reference) or "auto" (chunked on a GPU when sorting, else atomic; on the CPU atomic
-    measured faster).
+    plain reference), "column" (nine threads per run of up to `column_run` particles of one column
+    of cells, each sliding a 3-node window along z, into a packed vec4 grid: sim/p2g_column.py;
+    needs sorting) or "auto" (chunked on a GPU when sorting, else atomic; on the CPU atomic
+    measured faster). `vector_atomics` (column): a node's momentum and mass go out as one 16-byte
+    atomic on sm_90+ (False: four scalar atomics). `p2g_max_registers`: compile the P2G kernel
+    with at most this many registers per CUDA thread (None: the compiler's choice).
     """
 
     def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int | None = None,
                  p2g: str = "auto", sort_substeps: int | None = None, resort_inside: bool = False,
-                 g2p_max_registers: int | None = None) -> None:
+                 g2p_max_registers: int | None = None, column_run: int | None = None, vector_atomics: bool = True,
+                 p2g_max_registers: int | None = None) -> None:
         particles.validate()
         self.scene = scene
         self.device = resolve_warp_device(device)
@@ -128,8 +134,10 @@ class MPMSolver:
         if sort_every is None:
             sort_every = 1 if self.device == "cpu" or self.n >= SORT_MIN_PARTICLES else 0
         self.sort_every = int(sort_every)
-        if p2g not in ("auto", "chunked", "atomic"):
-            raise ValueError(f"p2g must be 'auto', 'chunked' or 'atomic', got {p2g!r}")
+        if p2g not in ("auto", "chunked", "atomic", "column"):
+            raise ValueError(f"p2g must be 'auto', 'chunked', 'atomic' or 'column', got {p2g!r}")
+        if p2g == "column" and self.sort_every == 0:
+            raise ValueError("p2g='column' needs the particles in cell order (sort_every > 0)")
         if p2g == "auto":
             p2g = "chunked" if self.device != "cpu" and self.sort_every > 0 else "atomic"
         self.p2g_kind = p2g
@@ -138,6 +146,13 @@ class MPMSolver:
             raise ValueError(f"sort_substeps must be >= 1, got {sort_substeps!r}")
         self.resort_inside = bool(resort_inside)
         self.g2p_max_registers = g2p_max_registers
+        self.p2g_max_registers = p2g_max_registers
+        self.column_run = COLUMN_RUN if column_run is None else int(column_run)
+        if self.column_run < 1:
+            raise ValueError(f"column_run must be >= 1, got {column_run!r}")
+        self.vector_atomics = bool(vector_atomics)
+        self._runs_p2g = p2g in ("chunked", "column")  # P2G threads take runs from the cell sort
+        self._packed = p2g == "column"  # grid_mv (momentum xyz, mass per node) instead of two arrays
         self.timing: dict[str, float] = {}
         self.kernel_timer = None
         self._impulse_done = [False] * len(scene.impulses)
@@ -174,6 +189,7 @@ class MPMSolver:
         self.order = wp.array(np.arange(self.n, dtype=np.int32), dtype=wp.int32, device=d)  # slot → index
         self.run_start = wp.zeros(self.n + 1, dtype=wp.int32, device=d)  # P2G thread t: run_start[t] ≤ p < [t+1]
         self.run_count = wp.zeros(1, dtype=wp.int32, device=d)  # runs in run_start (stays on the device)
+        self.run_key = wp.zeros(self.n if self._packed else 1, dtype=wp.int32, device=d)  # column: first cell per run
         chunk_runs(self.n, CHUNK, self.run_start, self.run_count)
         self._identity = wp.array(np.arange(self.n, dtype=np.int32), dtype=wp.int32, device=d)
         self._p2g_index = self._identity  # P2G reads particle index[i] for run position i
@@ -181,7 +197,9 @@ class MPMSolver:
         self._reducer = StatsReducer(d)
 
         self.grid_mass = wp.zeros(self.dims, dtype=float, device=d)
-        self.grid_momentum = wp.zeros(self.dims, dtype=wp.vec3, device=d)
+        # packed: P2G sums into grid_mv; grid_mass only takes the node masses for rigid coupling
+        self.grid_momentum = None if self._packed else wp.zeros(self.dims, dtype=wp.vec3, device=d)
+        self.grid_mv = wp.zeros(self.dims, dtype=wp.vec4, device=d) if self._packed else None
         self.grid_fixed = wp.zeros(self.dims, dtype=float, device=d)
         self.grid_velocity = wp.zeros(self.dims, dtype=wp.vec3, device=d)
 
@@ -323,19 +341,27 @@ class MPMSolver:
         perm, keys = cell_order(self.x, self.grid_info)
         permute_in_place(perm, self._particle_arrays())
         self._order_host = None
-        cell_runs(keys, self.run_start, self.run_count)
+        self._cell_runs(keys)
         self._set_p2g_index(self._identity)
 
     def _reindex(self) -> None:
         """A fresh cell order for the chunked P2G only: sort an index, not the arrays (cheap, all
         on the device: done every sort_substeps substeps as particles drift between cells)."""
         perm, keys = cell_order(self.x, self.grid_info)
-        cell_runs(keys, self.run_start, self.run_count)
+        self._cell_runs(keys)
         self._set_p2g_index(perm)
+
+    def _cell_runs(self, keys: wp.array) -> None:
+        """The P2G runs of cell-sorted `keys`: one cell each, or (column) one column of cells."""
+        if self._packed:
+            cell_runs(keys, self.run_start, self.run_count, self.column_run, column=self.dims[2],
+                      run_keys=self.run_key)
+        else:
+            cell_runs(keys, self.run_start, self.run_count)
 
     def _set_p2g_index(self, index: wp.array) -> None:
         self._p2g_index = index
-        if self.p2g_kind == "chunked":
+        if self._runs_p2g:
             self._p2g.set_param_by_name("index", index)
 
     @property
@@ -461,15 +487,13 @@ class MPMSolver:
         t_stats = clock()
         dt = frame_dt_s / n_sub
         t0 = self.time_s
-        self.grid_mass.zero_()
-        self.grid_momentum.zero_()
-        self.grid_fixed.zero_()
+        self._clear_grid()
         for s in range(n_sub):
             if s == resort_at:  # the frame's full re-sort, issued while the device is busy
                 self._resort()
                 if self.kernel_timer is not None:
                     self.kernel_timer.mark("resort")
-            elif self.sort_every > 0 and self.p2g_kind == "chunked" and s > 0 and s % self.sort_substeps == 0:
+            elif self.sort_every > 0 and self._runs_p2g and s > 0 and s % self.sort_substeps == 0:
                 self._reindex()  # all on the device: the launches queue behind the substeps
                 if self.kernel_timer is not None:
                     self.kernel_timer.mark("sort")
@@ -491,7 +515,7 @@ class MPMSolver:
         at or after RESORT_SUBSTEP (by then the host, issuing launches faster than the device runs
         them, is far enough ahead that issuing the ~40 launches of a re-sort leaves the device no
         gap); -1: at the frame start (no in-frame index sorts, or too few substeps)."""
-        if self.p2g_kind != "chunked":
+        if not self._runs_p2g:
             return -1
         at = -(-RESORT_SUBSTEP // self.sort_substeps) * self.sort_substeps
         return at if at < n_sub else -1
@@ -527,24 +551,40 @@ class MPMSolver:
         particle_inputs = [self.x, self.v, self.C, self.stress, self.volume, self.mass, self.fixed_flag,
                            self.grid_info, 0.0]
         grid_outputs = [self.grid_mass, self.grid_momentum, self.grid_fixed]
-        if self.p2g_kind == "chunked":
-            self._p2g = wp.launch(kernels.p2g_chunked, dim=self.n, device=d, record_cmd=True,
+        capped = lambda k: kernels.register_capped(k, self.p2g_max_registers)  # noqa: E731
+        if self.p2g_kind == "column":
+            self._p2g = wp.launch(capped(p2g_column.p2g_column), device=d, record_cmd=True,
+                                  dim=p2g_column.column_threads(self.n, self.column_run, self.dims),
+                                  inputs=particle_inputs + [self.run_start, self.run_count, self.run_key,
+                                                            self._p2g_index, int(self.vector_atomics), self.grid_mv,
+                                                            self.grid_fixed])
+        elif self.p2g_kind == "chunked":
+            self._p2g = wp.launch(capped(kernels.p2g_chunked), dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + [self.run_start, self.run_count, self._p2g_index]
                                   + grid_outputs)
         else:
-            self._p2g = wp.launch(kernels.p2g, dim=self.n, device=d, record_cmd=True,
+            self._p2g = wp.launch(capped(kernels.p2g), dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + grid_outputs)
+        grid_in = [self.grid_mv, self.grid_fixed] if self._packed else grid_outputs
         self._grid = wp.launch(
-            kernels.grid_update, dim=self.dims, device=d, record_cmd=True,
-            inputs=[self.grid_mass, self.grid_momentum, self.grid_fixed, self.grid_velocity, self.grid_info,
-                    wp.vec3i(0, 0, 0), 0.0, 0.0, wp.vec3(*sc.gravity), self.wind_acc, self.wind_lo, self.wind_hi,
-                    self.wind_timing, len(sc.wind), sc.damping, sc.air_drag, int(sc.ground.enabled),
-                    sc.ground.height_m, sc.ground.friction, int(sc.walls == "sticky"), BOUNDARY_CELLS])
+            p2g_column.grid_update_packed if self._packed else kernels.grid_update, dim=self.dims, device=d,
+            record_cmd=True,
+            inputs=grid_in + [self.grid_velocity, self.grid_info,
+                              wp.vec3i(0, 0, 0), 0.0, 0.0, wp.vec3(*sc.gravity), self.wind_acc, self.wind_lo,
+                              self.wind_hi, self.wind_timing, len(sc.wind), sc.damping, sc.air_drag,
+                              int(sc.ground.enabled), sc.ground.height_m, sc.ground.friction,
+                              int(sc.walls == "sticky"), BOUNDARY_CELLS])
         self._g2p = wp.launch(
             kernels.register_capped(kernels.g2p, self.g2p_max_registers), dim=self.n, device=d, record_cmd=True,
             inputs=[self.x, self.v, self.C, self.F, self.mu, self.lam, self.yield_stress, self.material,
                     self.Jp, self.fixed_flag, self.grid_info, self.material_params, 0.0, self.grid_velocity,
                     self.stress])
+
+    def _clear_grid(self) -> None:
+        """Zero the P2G sums (the grid update clears them after each substep)."""
+        for a in (self.grid_mass, self.grid_momentum, self.grid_mv, self.grid_fixed):
+            if a is not None:
+                a.zero_()
 
     def _substep(self, dt: float, t: float) -> None:
         timer = self.kernel_timer
@@ -558,6 +598,9 @@ class MPMSolver:
         self._grid.set_param_by_name("dt", dt)
         self._grid.set_param_by_name("time_s", t)
         if self.rigid is not None:  # nodes the bodies cover, impulses, node masses (sim/rigid.py)
+            if self._packed:
+                wp.launch(p2g_column.packed_mass, dim=self.dims, device=self.device,
+                          inputs=[self.grid_mv, self.grid_mass])
             self.rigid.before_grid(self.x, self.v, self.order, self.grid_info, self.grid_mass, self.grid_fixed,
                                    self._rigid_walls[0][2], dt)
         self._grid.launch()
