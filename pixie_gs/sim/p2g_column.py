@@ -181,10 +181,114 @@ def p2g_column(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.arr
     flush_node(grid_mv, gi, gj, cur + 2, acc2, vector_atomics)
 
 
-def column_threads(n: int, max_run: int, dims: tuple[int, int, int]) -> int:
-    """Threads to launch for p2g_column: 9 per run, for the most runs N particles can form (a run
-    ends at a new column of cells, of which there are ≤ dims_x·dims_y, or every max_run-th particle)."""
-    return COLUMN_THREADS * (-(-n // max_run) + dims[0] * dims[1])
+SLAB_THREADS = 3  # p2g_slab: threads per run, one per x-slab of the stencil
+
+slab_sums = wp.types.matrix(shape=(3, 4), dtype=float)  # per stencil y offset b: momentum xyz, mass
+
+
+@wp.func
+def flush_row(grid_mv: wp.array3d(dtype=wp.vec4), i: int, j: int, k: int, acc: slab_sums, b: int, vector: int):
+    """flush_node of row b of a slab window (node (i, j + b, k))."""
+    flush_node(grid_mv, i, j + b, k, wp.vec4(acc[b, 0], acc[b, 1], acc[b, 2], acc[b, 3]), vector)
+
+
+@wp.kernel
+def p2g_slab(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33),
+             stress: wp.array(dtype=wp.mat33), volume: wp.array(dtype=float), mass: wp.array(dtype=float),
+             fixed: wp.array(dtype=wp.int32), grid: GridInfo, dt: float, run_start: wp.array(dtype=wp.int32),
+             n_runs: wp.array(dtype=wp.int32), run_key: wp.array(dtype=wp.int32), index: wp.array(dtype=wp.int32),
+             vector_atomics: int, grid_mv: wp.array3d(dtype=wp.vec4), grid_fixed: wp.array3d(dtype=float)):
+    """p2g_column with three threads per run: thread t takes run t // 3 and the x-slab a = t % 3 of
+    the stencil, a 3×3-node window (y offsets b, z nodes cur..cur+2) sliding along z — a third of
+    the column kernel's redundant particle reads and weight arithmetic, 36 sums per thread."""
+    t = wp.tid()
+    s = t // SLAB_THREADS
+    if s >= n_runs[0]:
+        return
+    a = t - s * SLAB_THREADS
+    ny = grid.dims[1]
+    nz = grid.dims[2]
+    key = run_key[s]
+    ci = key // (ny * nz)
+    cj = (key // nz) % ny
+    cur = key % nz
+    gi = ci + a
+    acc0 = slab_sums()  # z node cur
+    acc1 = slab_sums()  # cur + 1
+    acc2 = slab_sums()  # cur + 2
+    for r in range(run_start[s], run_start[s + 1]):
+        p = index[r]
+        base, fx = stencil_of(x[p], grid)
+        m = mass[p]
+        affine = mls_affine(dt, volume[p], stress[p], m, C[p], grid)
+        wa = bspline_weight(fx[0], a)
+        wy = bspline_weights(fx[1])
+        wz = bspline_weights(fx[2])
+        q = m * v[p] + affine * (wp.vec3(float(a) - fx[0], -fx[1], -fx[2]) * grid.dx)
+        step_y = affine * wp.vec3(0.0, grid.dx, 0.0)
+        step_z = affine * wp.vec3(0.0, 0.0, grid.dx)
+        pi = base[0] + a
+        kb = base[2]
+        held = fixed[p] != 0
+        inside = pi == gi and base[1] == cj and kb >= cur
+        if inside:
+            shift = kb - cur
+            if shift >= 1:
+                for b in range(3):
+                    flush_row(grid_mv, gi, cj, cur, acc0, b, vector_atomics)
+                    if shift >= 2:
+                        flush_row(grid_mv, gi, cj, cur + 1, acc1, b, vector_atomics)
+                    if shift >= 3:
+                        flush_row(grid_mv, gi, cj, cur + 2, acc2, b, vector_atomics)
+                if shift == 1:
+                    acc0 = acc1
+                    acc1 = acc2
+                    acc2 = slab_sums()
+                elif shift == 2:
+                    acc0 = acc2
+                    acc1 = slab_sums()
+                    acc2 = slab_sums()
+                else:
+                    acc0 = slab_sums()
+                    acc1 = slab_sums()
+                    acc2 = slab_sums()
+            cur = kb
+        for b in range(3):
+            qb = q + float(b) * step_y
+            for c in range(3):
+                w = wa * wy[b] * wz[c]
+                mom = w * (qb + float(c) * step_z)
+                if held:
+                    wp.atomic_add(grid_fixed, pi, base[1] + b, kb + c, w)
+                if inside:
+                    if c == 0:
+                        acc0[b, 0] += mom[0]
+                        acc0[b, 1] += mom[1]
+                        acc0[b, 2] += mom[2]
+                        acc0[b, 3] += w * m
+                    elif c == 1:
+                        acc1[b, 0] += mom[0]
+                        acc1[b, 1] += mom[1]
+                        acc1[b, 2] += mom[2]
+                        acc1[b, 3] += w * m
+                    else:
+                        acc2[b, 0] += mom[0]
+                        acc2[b, 1] += mom[1]
+                        acc2[b, 2] += mom[2]
+                        acc2[b, 3] += w * m
+                else:  # left the run's column since the sort, or below the window: directly
+                    add_node(grid_mv, pi, base[1] + b, kb + c, wp.vec4(mom[0], mom[1], mom[2], w * m), vector_atomics)
+    for b in range(3):
+        flush_row(grid_mv, gi, cj, cur, acc0, b, vector_atomics)
+        flush_row(grid_mv, gi, cj, cur + 1, acc1, b, vector_atomics)
+        flush_row(grid_mv, gi, cj, cur + 2, acc2, b, vector_atomics)
+
+
+def column_threads(n: int, max_run: int, dims: tuple[int, int, int], per_run: int = COLUMN_THREADS) -> int:
+    """Threads to launch for p2g_column (per_run 9) or p2g_slab (3): per_run per run, for the most
+    runs N particles can form (a run ends at a new column of cells, of which there are
+    ≤ dims_x·dims_y, or every max_run-th particle)."""
+    return per_run * (-(-n // max_run) + dims[0] * dims[1])
 
 
 @wp.kernel

@@ -38,7 +38,11 @@ from .state import ARRAY_FIELDS, State
 CHUNK = 8  # particles per P2G thread while the particles are in no cell order (sort_every = 0)
 SORT_SUBSTEPS = 4  # with sorting on, the chunked P2G's cell order is refreshed every this many substeps
 RESORT_SUBSTEP = 16  # resort_inside: the frame's array re-sort goes in at the first index sort from this substep
-COLUMN_RUN = 32  # p2g="column": particles per run at most (a run is one column of cells along z)
+COLUMN_RUN = 32  # p2g="column"/"slab": particles per run at most (a run is one column of cells along z)
+# P2G kernels; the column ones (sim/p2g_column.py) with their threads per run
+COLUMN_KINDS = {"column": (p2g_column.p2g_column, p2g_column.COLUMN_THREADS),
+                "slab": (p2g_column.p2g_slab, p2g_column.SLAB_THREADS)}
+P2G_KINDS = ("auto", "chunked", "atomic", *COLUMN_KINDS)
 SORT_MIN_PARTICLES = 50_000  # on a GPU, smaller runs fit in cache and are launch-bound: no sorting
 
 FAR = 1.0e30  # "unbounded" for regions and time windows passed to kernels
@@ -107,8 +111,9 @@ class MPMSolver:
     grid, kernels.p2g_chunked), "atomic" (one global atomic per particle and node, kernels.p2g, the
     plain reference), "column" (nine threads per run of up to `column_run` particles of one column
     of cells, each sliding a 3-node window along z, into a packed vec4 grid: sim/p2g_column.py;
-    needs sorting) or "auto" (chunked on a GPU when sorting, else atomic; on the CPU atomic
-    measured faster). `vector_atomics` (column): a node's momentum and mass go out as one 16-byte
+    needs sorting), "slab" (the same with three threads per run, 3×3-node windows) or "auto"
+    (chunked on a GPU when sorting, else atomic; on the CPU atomic measured faster).
+    `vector_atomics` (column, slab): a node's momentum and mass go out as one 16-byte
     atomic on sm_90+ (False: four scalar atomics). `p2g_max_registers`: compile the P2G kernel
     with at most this many registers per CUDA thread (None: the compiler's choice).
     """
@@ -134,10 +139,10 @@ class MPMSolver:
         if sort_every is None:
             sort_every = 1 if self.device == "cpu" or self.n >= SORT_MIN_PARTICLES else 0
         self.sort_every = int(sort_every)
-        if p2g not in ("auto", "chunked", "atomic", "column"):
-            raise ValueError(f"p2g must be 'auto', 'chunked', 'atomic' or 'column', got {p2g!r}")
-        if p2g == "column" and self.sort_every == 0:
-            raise ValueError("p2g='column' needs the particles in cell order (sort_every > 0)")
+        if p2g not in P2G_KINDS:
+            raise ValueError(f"p2g must be one of {', '.join(P2G_KINDS)}, got {p2g!r}")
+        if p2g in COLUMN_KINDS and self.sort_every == 0:
+            raise ValueError(f"p2g={p2g!r} needs the particles in cell order (sort_every > 0)")
         if p2g == "auto":
             p2g = "chunked" if self.device != "cpu" and self.sort_every > 0 else "atomic"
         self.p2g_kind = p2g
@@ -151,8 +156,8 @@ class MPMSolver:
         if self.column_run < 1:
             raise ValueError(f"column_run must be >= 1, got {column_run!r}")
         self.vector_atomics = bool(vector_atomics)
-        self._runs_p2g = p2g in ("chunked", "column")  # P2G threads take runs from the cell sort
-        self._packed = p2g == "column"  # grid_mv (momentum xyz, mass per node) instead of two arrays
+        self._packed = p2g in COLUMN_KINDS  # grid_mv (momentum xyz, mass per node) instead of two arrays
+        self._runs_p2g = p2g == "chunked" or self._packed  # P2G threads take runs from the cell sort
         self.timing: dict[str, float] = {}
         self.kernel_timer = None
         self._impulse_done = [False] * len(scene.impulses)
@@ -552,9 +557,10 @@ class MPMSolver:
                            self.grid_info, 0.0]
         grid_outputs = [self.grid_mass, self.grid_momentum, self.grid_fixed]
         capped = lambda k: kernels.register_capped(k, self.p2g_max_registers)  # noqa: E731
-        if self.p2g_kind == "column":
-            self._p2g = wp.launch(capped(p2g_column.p2g_column), device=d, record_cmd=True,
-                                  dim=p2g_column.column_threads(self.n, self.column_run, self.dims),
+        if self._packed:
+            kernel, per_run = COLUMN_KINDS[self.p2g_kind]
+            self._p2g = wp.launch(capped(kernel), device=d, record_cmd=True,
+                                  dim=p2g_column.column_threads(self.n, self.column_run, self.dims, per_run),
                                   inputs=particle_inputs + [self.run_start, self.run_count, self.run_key,
                                                             self._p2g_index, int(self.vector_atomics), self.grid_mv,
                                                             self.grid_fixed])

@@ -1,0 +1,243 @@
+"""The column P2G kernels (sim/p2g_column.py: nine or three threads per run of one column of
+cells, sliding node windows along z, into a packed vec4 grid) against their plain reference
+kernels.p2g, the packed grid update against kernels.grid_update, the column runs against numpy,
+and solvers using them against the atomic solver. Runs on every Warp device present (cpu
+always, cuda when a GPU is there; PIXIE_TEST_DEVICES=cuda picks one): on sm_90 the node sums
+go out as 16-byte vector atomics, so the CUDA run is what checks that path."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pixie_gs.sim import MPMSolver, Particles, Scene
+from pixie_gs.sim import solver as solver_module
+from test_sim_kernels import MarkRecorder, device, mixed_block, moving_block, scene_for_tests  # noqa: F401
+from test_sim_physics import join
+from test_sim_rigid import AL, free_scene
+
+KERNELS = ("column", "slab")
+
+
+def sorted_keys(sim: MPMSolver, scene: Scene) -> np.ndarray:
+    """Cell keys (z fastest) of the solver's particles in slot order, in numpy."""
+    cell = np.floor((sim.x.numpy().astype(np.float64) - scene.domain_origin()) / scene.dx - 0.5).astype(np.int64)
+    dims = np.array(scene.grid_dims)
+    return (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+
+
+def test_column_runs_start_at_each_new_column_and_every_max_run(device):
+    import warp as wp
+
+    from pixie_gs.sim.sort import cell_runs
+
+    scene = scene_for_tests()
+    sim = MPMSolver(mixed_block(scene), scene, device, sort_every=1)
+    keys = sorted_keys(sim, scene)
+    assert np.all(np.diff(keys) >= 0)  # the solver sorted its arrays
+    nz = scene.grid_dims[2]
+    starts = wp.zeros(sim.n + 1, dtype=wp.int32, device=device)
+    counter = wp.zeros(1, dtype=wp.int32, device=device)
+    run_keys = wp.zeros(sim.n, dtype=wp.int32, device=device)
+    i = np.arange(sim.n)
+    column = keys // nz
+    for max_run in (5, 64):
+        cell_runs(wp.array(keys.astype(np.int32), dtype=wp.int32, device=device), starts, counter, max_run=max_run,
+                  column=nz, run_keys=run_keys)
+        heads = i[(i == 0) | (np.r_[0, np.diff(column)] != 0) | (i % max_run == 0)]
+        count = int(counter.numpy()[0])
+        assert count == len(heads) < sim.n
+        assert np.array_equal(starts.numpy()[:count + 1], np.append(heads, sim.n))
+        assert np.array_equal(run_keys.numpy()[:count], keys[heads])
+        for a, b in zip(heads, np.append(heads[1:], sim.n)):  # never two columns in a run
+            assert len(np.unique(column[a:b])) == 1
+    assert count < len(np.unique(keys)) / 2  # runs of 64: several cells of one column each
+
+
+def scatter_column(sim: MPMSolver, kind: str, max_run: int, index: np.ndarray | None = None,
+                   vector: int = 1, keys_from: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+    """(grid mass, momentum, fixed weight) after one P2G of the column kernel `kind` over runs of
+    the cell keys `keys_from` (default: the particles' own, in slot order) and particles index[i]."""
+    import warp as wp
+
+    from pixie_gs.sim import p2g_column
+    from pixie_gs.sim.sort import cell_runs
+
+    d = sim.device
+    kernel, per_run = solver_module.COLUMN_KINDS[kind]
+    keys = sorted_keys(sim, sim.scene) if keys_from is None else keys_from
+    starts = wp.zeros(sim.n + 1, dtype=wp.int32, device=d)
+    counter = wp.zeros(1, dtype=wp.int32, device=d)
+    run_keys = wp.zeros(sim.n, dtype=wp.int32, device=d)
+    cell_runs(wp.array(keys.astype(np.int32), dtype=wp.int32, device=d), starts, counter, max_run=max_run,
+              column=sim.dims[2], run_keys=run_keys)
+    order = wp.array(np.arange(sim.n, dtype=np.int32) if index is None else index.astype(np.int32), dtype=wp.int32,
+                     device=d)
+    grid_mv = wp.zeros(sim.dims, dtype=wp.vec4, device=d)
+    grid_fixed = wp.zeros(sim.dims, dtype=float, device=d)
+    wp.launch(kernel, dim=p2g_column.column_threads(sim.n, max_run, sim.dims, per_run), device=d,
+              inputs=[sim.x, sim.v, sim.C, sim.stress, sim.volume, sim.mass, sim.fixed_flag, sim.grid_info, 1e-3,
+                      starts, counter, run_keys, order, vector, grid_mv, grid_fixed])
+    mv = grid_mv.numpy()
+    return mv[..., 3], mv[..., :3], grid_fixed.numpy()
+
+
+def scatter_atomic(sim: MPMSolver) -> tuple[np.ndarray, ...]:
+    import warp as wp
+
+    from pixie_gs.sim import kernels
+
+    d = sim.device
+    out = [wp.zeros(sim.dims, dtype=t, device=d) for t in (float, wp.vec3, float)]
+    wp.launch(kernels.p2g, dim=sim.n, device=d,
+              inputs=[sim.x, sim.v, sim.C, sim.stress, sim.volume, sim.mass, sim.fixed_flag, sim.grid_info, 1e-3]
+              + out)
+    return tuple(a.numpy() for a in out)
+
+
+def assert_same_grid(reference: tuple[np.ndarray, ...], fast: tuple[np.ndarray, ...]) -> None:
+    for a, b in zip(reference, fast):
+        assert np.abs(a - b).max() <= 1e-5 * np.abs(a).max()  # summation order only
+
+
+def sparse(p: Particles, keep: float, seed: int = 7) -> Particles:
+    """A random `keep` fraction of the particles: columns of cells with empty cells between
+    occupied ones (the window jumps more than its 3 nodes)."""
+    mask = np.random.default_rng(seed).random(len(p.x)) < keep
+    fields = ("x", "v", "volume", "E", "nu", "density", "material_id", "yield_stress", "fixed", "part_id")
+    return Particles(**{f: getattr(p, f)[mask] for f in fields})
+
+
+@pytest.mark.parametrize("kind", KERNELS)
+@pytest.mark.parametrize("keep", [1.0, 0.08])
+def test_column_p2g_matches_the_plain_atomic_kernel(device, kind, keep):
+    scene = scene_for_tests()
+    p = mixed_block(scene)  # jelly, metal, snow; 10 % held
+    sim = MPMSolver(p if keep == 1.0 else sparse(p, keep), scene, device, sort_every=1)
+    if keep < 1.0:  # consecutive particles of a column three or more cells apart
+        keys = sorted_keys(sim, scene)
+        same_column = np.diff(keys // scene.grid_dims[2]) == 0
+        assert (np.diff(keys)[same_column] >= 3).sum() >= 5
+    rng = np.random.default_rng(2)
+    sim.C.assign(rng.normal(0.0, 1.0, (sim.n, 3, 3)).astype(np.float32))
+    sim.stress.assign(rng.normal(0.0, 100.0, (sim.n, 3, 3)).astype(np.float32))
+    reference = scatter_atomic(sim)
+    assert reference[2].max() > 0.0  # held particles mark nodes
+    keys = sorted_keys(sim, scene)
+    # runs of whole columns, runs that end inside a cell, one particle per run; vector atomics
+    # on and off (the same code off sm_90); every particle through a shuffled index, so the runs
+    # (from the sorted keys) hold particles of other columns and out of z order: the direct path
+    cases = [(32, None, 1), (3, None, 1), (1, None, 0), (32, None, 0), (8, rng.permutation(sim.n), 1)]
+    for max_run, index, vector in cases:
+        fast = scatter_column(sim, kind, max_run, index, vector, keys_from=keys)
+        assert_same_grid(reference, fast)
+    # the independent sums: total mass and momentum are the particles' own
+    mass = sim.mass.numpy().astype(np.float64)
+    assert fast[0].sum() == pytest.approx(mass.sum(), rel=1e-5)
+    momentum = (mass[:, None] * sim.v.numpy()).sum(0)  # the affine part sums to 0 (B-spline moments)
+    assert np.allclose(fast[1].reshape(-1, 3).sum(0), momentum, rtol=1e-4, atol=1e-9)
+
+
+@pytest.mark.parametrize("kind", KERNELS)
+def test_column_p2g_is_right_after_particles_drift_out_of_their_sorted_cells(device, kind):
+    """Runs from the sort, positions moved since by up to ±0.8 cells per axis (what happens
+    between in-frame re-sorts): particles step up and down the window and leave the column."""
+    scene = scene_for_tests()
+    sim = MPMSolver(mixed_block(scene), scene, device, sort_every=1)
+    rng = np.random.default_rng(3)
+    sim.stress.assign(rng.normal(0.0, 100.0, (sim.n, 3, 3)).astype(np.float32))
+    keys = sorted_keys(sim, scene)
+    x = sim.x.numpy()
+    sim.x.assign((x + rng.uniform(-0.8, 0.8, x.shape) * scene.dx).astype(np.float32))
+    moved = sorted_keys(sim, scene) != keys
+    assert 0.5 < moved.mean() < 1.0  # most particles changed cell, some did not
+    reference = scatter_atomic(sim)
+    for max_run in (32, 4):
+        assert_same_grid(reference, scatter_column(sim, kind, max_run, keys_from=keys))
+
+
+def test_packed_grid_update_matches_grid_update(device):
+    import warp as wp
+
+    from pixie_gs.sim import kernels, p2g_column
+
+    scene = Scene.from_dict({"domain": {"size_m": 0.4, "grid": 16}, "ground": {"friction": 0.4, "height_m": 0.02},
+                             "damping": 2.0, "air_drag": 0.5,
+                             "wind": [{"acceleration": [3.0, 0.0, 0.0], "region": {"min": [-1, -1, 0.1],
+                                                                                    "max": [1, 1, 1]}}]})
+    sim = MPMSolver(mixed_block(scene), scene, device, sort_every=0)
+    rng = np.random.default_rng(5)
+    dims = sim.dims
+    mass = np.where(rng.random(dims) < 0.7, rng.uniform(0.1, 1.0, dims), 0.0).astype(np.float32)
+    momentum = rng.normal(0.0, 0.5, (*dims, 3)).astype(np.float32) * (mass[..., None] > 0)
+    held = (rng.random(dims) < 0.1).astype(np.float32)
+    outs = []
+    for packed in (False, True):
+        fixed = wp.array(held, dtype=float, device=device)
+        velocity = wp.zeros(dims, dtype=wp.vec3, device=device)
+        if packed:
+            grid_in = [wp.array(np.concatenate([momentum, mass[..., None]], -1), dtype=wp.vec4, device=device)]
+        else:
+            grid_in = [wp.array(mass, dtype=float, device=device), wp.array(momentum, dtype=wp.vec3, device=device)]
+        sc = scene
+        wp.launch(p2g_column.grid_update_packed if packed else kernels.grid_update, dim=dims, device=device,
+                  inputs=grid_in + [fixed, velocity, sim.grid_info, wp.vec3i(0, 0, 0), 1e-3, 0.5,
+                                    wp.vec3(*sc.gravity), sim.wind_acc, sim.wind_lo, sim.wind_hi, sim.wind_timing,
+                                    len(sc.wind), sc.damping, sc.air_drag, 1, sc.ground.height_m, sc.ground.friction,
+                                    0, 3])
+        outs.append(velocity.numpy())
+        assert all(not a.numpy().any() for a in grid_in + [fixed])  # cleared for the next P2G
+    assert np.array_equal(outs[0], outs[1])
+    assert np.abs(outs[0]).max() > 0.1 and not outs[0][held > 0].any()
+
+
+@pytest.mark.parametrize("kind", KERNELS)
+def test_solver_with_column_p2g_agrees_with_the_atomic_one(device, kind):
+    scene = scene_for_tests()
+    p = moving_block(scene)  # slides ~0.6 cells per frame: particles leave their cells inside a frame
+    reference = MPMSolver(p, scene, device, p2g="atomic", sort_every=1)
+    sim = MPMSolver(p, scene, device, p2g=kind, sort_every=1, sort_substeps=5, column_run=8)
+    assert sim.grid_momentum is None and sim.grid_mv is not None  # the packed grid only
+    recorder = MarkRecorder()
+    sim.kernel_timer = recorder
+    for _ in range(3):
+        for s in (reference, sim):
+            s.step_frame(1 / 60)
+        assert np.abs(reference.positions() - sim.positions()).max() < 1e-5  # m, in the caller's order
+        assert np.abs(reference.velocities() - sim.velocities()).max() < 1e-4  # m/s
+    assert recorder.names.count("sort") >= 3 * (sim.substeps_last_frame // 5 - 1)  # the in-frame re-sorts ran
+    assert np.array_equal(sim.material.numpy(), p.material_id[sim.order.numpy()])
+
+
+def test_column_p2g_with_a_rigid_body_agrees_with_the_atomic_one(device):
+    """Rigid coupling reads the node masses: the packed grid hands them over (p2g_column.packed_mass)."""
+    scene = free_scene(gravity=[0, 0, 0])
+    rigid = Particles.lattice((-0.2, -0.05, -0.05), (-0.1, 0.05, 0.05), scene.dx / 2, v=[2.0, 0, 0], **AL)
+    soft = Particles.lattice((-0.06, -0.05, -0.05), (0.04, 0.05, 0.05), scene.dx / 2, E=2e4, nu=0.3,
+                             density=1000.0, material_id=0)
+    both = join(rigid, soft)
+    runs = [MPMSolver(both, scene, device, p2g=kind, sort_every=1) for kind in ("atomic", "column")]
+    for _ in range(4):
+        for s in runs:
+            s.step_frame(1 / 60)
+    assert all(s.rigid is not None for s in runs)
+    assert np.abs(runs[0].positions() - runs[1].positions()).max() < 1e-5
+    assert np.abs(runs[0].velocities()[len(rigid):, 0]).max() > 0.05  # the soft block was hit
+
+
+def test_column_p2g_needs_sorting_and_says_so():
+    scene = scene_for_tests()
+    with pytest.raises(ValueError, match="cell order"):
+        MPMSolver(mixed_block(scene), scene, "cpu", p2g="column", sort_every=0)
+    with pytest.raises(ValueError, match="column_run"):
+        MPMSolver(mixed_block(scene), scene, "cpu", p2g="column", column_run=0)
+
+
+def test_vector_atomics_are_used_exactly_where_the_compiled_architecture_has_them(device):
+    import warp as wp
+
+    from pixie_gs.sim.p2g_column import vector_atomics_active
+
+    if device == "cpu":
+        assert not vector_atomics_active(device)
+    else:
+        assert vector_atomics_active(device) == (wp.get_device(device).get_cuda_compile_arch() >= 90)
