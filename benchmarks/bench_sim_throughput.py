@@ -122,7 +122,9 @@ class KernelTimer:
 
 def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str = "lattice",
               p2g: str = "auto", sort_substeps: int | None = None, frames: int = 1, resort: str = "start",
-              g2p_registers: int | None = None) -> dict:
+              g2p_registers: int | None = None, column: dict | None = None) -> dict:
+    """`column`: the column-P2G options (column_run, vector_atomics, p2g_max_registers) for p2g
+    "column"/"slab"; the rest as the command-line options say."""
     import warp as wp
 
     from pixie_gs.sim.solver import MPMSolver
@@ -131,7 +133,7 @@ def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str
     n = len(particles)
     sort = {} if order == "sorted" else {"sort_every": 0}  # sorted: the solver's default (every frame)
     solver = MPMSolver(particles, scene, device, p2g=p2g, sort_substeps=sort_substeps,
-                       resort_inside=resort == "inside", g2p_max_registers=g2p_registers, **sort)
+                       resort_inside=resort == "inside", g2p_max_registers=g2p_registers, **(column or {}), **sort)
     dt = float(solver.dt)
     # step_frame(k·dt) runs k substeps of the CFL dt (the solver's own counter says how many)
     solver.step_frame(warmup * dt * (1 - 1e-6))
@@ -170,7 +172,7 @@ def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str
             "rate": float(np.mean(frame_rates)), "frame_rates": frame_rates,
             "sort_substeps": solver.sort_substeps if solver.sort_every > 0 and solver.p2g_kind != "atomic" else None,
             "resort": resort if solver.sort_every > 0 and solver.p2g_kind != "atomic" else "",
-            "g2p_registers": g2p_registers, "bytes_particle_state": pp / n, "bytes_all_per_particle": total / n,
+            "g2p_registers": g2p_registers, "column": column or {}, "bytes_particle_state": pp / n, "bytes_all_per_particle": total / n,
             "dt": dt, "host": host, "kernels": kernels, "reduction_s": reduction_s, "sort_s": sort_s}
 
 
@@ -245,11 +247,15 @@ def time_numpy(n_target: int, substeps: int) -> dict:
             "rate": n * substeps / seconds}
 
 
-def parse_variant(text: str) -> tuple[str, int, str, int | None]:
-    """'KIND[,sort=K][,inside][,g2p=R]' → (P2G kind, re-sort interval (0: default), "start" or
-    "inside", G2P register cap or None)."""
+P2G_CHOICES = ("auto", "chunked", "atomic", "column", "slab")
+
+
+def parse_variant(text: str) -> tuple[str, int, str, int | None, dict]:
+    """'KIND[,sort=K][,inside][,g2p=R][,run=L][,novec][,p2g=R]' → (P2G kind, re-sort interval (0:
+    default), "start" or "inside", G2P register cap or None, column-P2G options: particles per run
+    L, scalar instead of vector atomics, P2G register cap R)."""
     kind, *opts = text.split(",")
-    k_sort, resort, regs = 0, "start", None
+    k_sort, resort, regs, column = 0, "start", None, {}
     for opt in opts:
         if opt == "inside":
             resort = "inside"
@@ -257,11 +263,17 @@ def parse_variant(text: str) -> tuple[str, int, str, int | None]:
             k_sort = int(opt[5:])
         elif opt.startswith("g2p="):
             regs = int(opt[4:])
+        elif opt.startswith("run="):
+            column["column_run"] = int(opt[4:])
+        elif opt == "novec":
+            column["vector_atomics"] = False
+        elif opt.startswith("p2g="):
+            column["p2g_max_registers"] = int(opt[4:])
         else:
             raise SystemExit(f"--variant {text!r}: unknown option {opt!r}")
-    if kind not in ("auto", "chunked", "atomic"):
+    if kind not in P2G_CHOICES:
         raise SystemExit(f"--variant {text!r}: unknown P2G kind {kind!r}")
-    return kind, k_sort, resort, regs
+    return kind, k_sort, resort, regs, column
 
 
 def main() -> None:
@@ -274,20 +286,25 @@ def main() -> None:
     parser.add_argument("--baseline-substeps", type=int, default=3)
     parser.add_argument("--order", nargs="+", default=["random", "sorted"], choices=["lattice", "random", "sorted"],
                         help="particle order(s) to time (see above)")
-    parser.add_argument("--p2g", nargs="+", default=["auto"], choices=["auto", "chunked", "atomic"],
+    parser.add_argument("--p2g", nargs="+", default=["auto"], choices=list(P2G_CHOICES),
                         help="P2G kernel(s): chunked (one thread per same-cell run), atomic (the plain one), "
-                             "auto (solver default: chunked on a GPU, atomic on the CPU)")
+                             "column / slab (9 / 3 threads per run of one column of cells, sliding windows, "
+                             "packed grid; sorted order only), auto (solver default: chunked on a GPU, atomic "
+                             "on the CPU)")
     parser.add_argument("--sort-substeps", type=int, nargs="+", default=[0],
                         help="in-frame index re-sort interval(s) in substeps for the sorted order "
                              "(0: the solver's default)")
     parser.add_argument("--resort", nargs="+", default=["start"], choices=["start", "inside"],
                         help="sorted order, chunked P2G: the frame's array re-sort at the frame start (the "
                              "solver's default) or inside the frame in place of an index sort (resort_inside)")
-    parser.add_argument("--variant", action="append", default=[], metavar="KIND[,sort=K][,inside][,g2p=R]",
+    parser.add_argument("--variant", action="append", default=[],
+                        metavar="KIND[,sort=K][,inside][,g2p=R][,run=L][,novec][,p2g=R]",
                         help="a sorted-order variant (repeatable; replaces the --p2g x --sort-substeps x "
                              "--resort product for the sorted order): P2G kind, in-frame index re-sort "
                              "interval K, array re-sort inside the frame, G2P compiled with at most R "
-                             "registers per CUDA thread; e.g. chunked,sort=16,inside,g2p=64")
+                             "registers per CUDA thread; for column/slab: at most L particles per run, "
+                             "scalar atomics (novec), P2G register cap; e.g. chunked,sort=16,inside,g2p=64 "
+                             "or column,run=64,p2g=80")
     parser.add_argument("--frames", type=int, default=1,
                         help="timed frames of --substeps each, one after the other (each printed, mean reported)")
     args = parser.parse_args()
@@ -299,6 +316,11 @@ def main() -> None:
     import warp as wp
 
     name = wp.get_device(device).name if device.startswith("cuda") else "cpu"
+    if device.startswith("cuda"):
+        from pixie_gs.sim.p2g_column import vector_atomics_active
+
+        name += f", kernels for sm_{wp.get_device(device).get_cuda_compile_arch()}, 16-byte vector atomics " + \
+            ("on" if vector_atomics_active(device) else "off")
     print(f"device {device} ({name}); elastic block E={E_PA:g} Pa nu={NU} rho={RHO:g} kg/m3, "
           f"{PARTICLES_PER_CELL} particles/cell; warm-up {args.warmup}, timed {substeps} substeps")
     base = time_numpy(args.baseline_particles, args.baseline_substeps)
@@ -308,20 +330,25 @@ def main() -> None:
     results = []
 
     def label(r: dict) -> str:
-        return f"P2G {r['p2g']}" + (f" re-sort/{r['sort_substeps']}" if r["sort_substeps"] else "") + \
+        col = r["column"]
+        column = "" if r["p2g"] not in ("column", "slab") else \
+            f" run {col.get('column_run', 32)}" + (" scalar atomics" if col.get("vector_atomics") is False else "")
+        return f"P2G {r['p2g']}" + column + (f" re-sort/{r['sort_substeps']}" if r["sort_substeps"] else "") + \
             (" array sort inside" if r["resort"] == "inside" else "") + \
-            (f" G2P {r['g2p_registers']} regs" if r["g2p_registers"] else "")
+            (f" G2P {r['g2p_registers']} regs" if r["g2p_registers"] else "") + \
+            (f" P2G {col['p2g_max_registers']} regs" if col.get("p2g_max_registers") else "")
 
     for n in args.sizes:
-        runs = [(o, k, s, r, None) for o in args.order for k in args.p2g for s in args.sort_substeps for r in args.resort
-                if not (args.variant and o == "sorted")]
+        runs = [(o, k, s, r, None, {}) for o in args.order for k in args.p2g for s in args.sort_substeps
+                for r in args.resort if not (args.variant and o == "sorted")
+                and not (o != "sorted" and k in ("column", "slab"))]  # the column P2Gs need sorting
         runs += [("sorted", *parse_variant(v)) for v in args.variant if "sorted" in args.order]
-        for order, p2g, k_sort, resort, g2p_registers in runs:
-            resorts = order == "sorted" and (p2g == "chunked" or (p2g == "auto" and device != "cpu"))
+        for order, p2g, k_sort, resort, g2p_registers, column in runs:
+            resorts = order == "sorted" and (p2g in ("chunked", "column", "slab") or (p2g == "auto" and device != "cpu"))
             if (k_sort != args.sort_substeps[0] or resort != args.resort[0]) and not resorts and g2p_registers is None:
                 continue  # no in-frame re-sort to vary
             r = time_warp(n, device, args.warmup, substeps, order, p2g, k_sort or None, args.frames, resort,
-                          g2p_registers)
+                          g2p_registers, column)
             results.append(r)
             cpu_rate = f" [{r['n'] * r['substeps'] / r['cpu_seconds'] / 1e6:.3f} M per process-CPU s]" \
                 if device == "cpu" and r["cpu_seconds"] > 0 else ""

@@ -298,13 +298,20 @@ def grid_update_packed(grid_mv: wp.array3d(dtype=wp.vec4), grid_fixed: wp.array3
                        wind_lo: wp.array(dtype=wp.vec3), wind_hi: wp.array(dtype=wp.vec3),
                        wind_timing: wp.array(dtype=wp.vec4), n_wind: int, damping: float, air_drag: float,
                        ground_enabled: int, ground_height: float, friction: float, sticky_walls: int, boundary: int):
-    """kernels.grid_update for the packed grid (momentum xyz, mass per node); clears it for the next P2G."""
+    """kernels.grid_update for the packed grid (momentum xyz, mass per node); clears it for the next P2G.
+    A node nothing landed on (all four sums and the held weight exactly 0) is left as it is: its
+    sums are already clear, and its velocity — kept from an earlier substep, finite — is read by no
+    G2P with a nonzero weight (a particle's own P2G put mass on every node it reads), so most of a
+    mostly-empty domain costs one 16-byte read instead of 32 bytes of writes."""
     a, b, c = wp.tid()
     i = a + box_lo[0]
     j = b + box_lo[1]
     k = c + box_lo[2]
     mv = grid_mv[i, j, k]
-    grid_velocity[i, j, k] = node_velocity(mv[3], wp.vec3(mv[0], mv[1], mv[2]), grid_fixed[i, j, k], i, j, k, grid,
+    held = grid_fixed[i, j, k]
+    if mv[3] == 0.0 and held == 0.0 and mv[0] == 0.0 and mv[1] == 0.0 and mv[2] == 0.0:
+        return
+    grid_velocity[i, j, k] = node_velocity(mv[3], wp.vec3(mv[0], mv[1], mv[2]), held, i, j, k, grid,
                                            dt, time_s, gravity, wind_acc, wind_lo, wind_hi, wind_timing, n_wind,
                                            damping, air_drag, ground_enabled, ground_height, friction, sticky_walls,
                                            boundary)
