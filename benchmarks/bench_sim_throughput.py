@@ -251,9 +251,9 @@ P2G_CHOICES = ("auto", "chunked", "atomic", "column", "slab")
 
 
 def parse_variant(text: str) -> tuple[str, int, str, int | None, dict]:
-    """'KIND[,sort=K][,inside][,g2p=R][,run=L][,novec][,p2g=R]' → (P2G kind, re-sort interval (0:
-    default), "start" or "inside", G2P register cap or None, column-P2G options: particles per run
-    L, scalar instead of vector atomics, P2G register cap R)."""
+    """'KIND[,sort=K][,inside][,g2p=R][,run=L][,novec][,p2g=R][,carry]' → (P2G kind, re-sort interval
+    (0: default), "start" or "inside", G2P register cap or None, column-P2G options: particles per
+    run L, scalar instead of vector atomics, P2G register cap R, affine matrices carried from G2P)."""
     kind, *opts = text.split(",")
     k_sort, resort, regs, column = 0, "start", None, {}
     for opt in opts:
@@ -269,6 +269,8 @@ def parse_variant(text: str) -> tuple[str, int, str, int | None, dict]:
             column["vector_atomics"] = False
         elif opt.startswith("p2g="):
             column["p2g_max_registers"] = int(opt[4:])
+        elif opt == "carry":
+            column["carry_affine"] = True
         else:
             raise SystemExit(f"--variant {text!r}: unknown option {opt!r}")
     if kind not in P2G_CHOICES:
@@ -298,13 +300,13 @@ def main() -> None:
                         help="sorted order, chunked P2G: the frame's array re-sort at the frame start (the "
                              "solver's default) or inside the frame in place of an index sort (resort_inside)")
     parser.add_argument("--variant", action="append", default=[],
-                        metavar="KIND[,sort=K][,inside][,g2p=R][,run=L][,novec][,p2g=R]",
+                        metavar="KIND[,sort=K][,inside][,g2p=R][,run=L][,novec][,p2g=R][,carry]",
                         help="a sorted-order variant (repeatable; replaces the --p2g x --sort-substeps x "
                              "--resort product for the sorted order): P2G kind, in-frame index re-sort "
                              "interval K, array re-sort inside the frame, G2P compiled with at most R "
                              "registers per CUDA thread; for column/slab: at most L particles per run, "
-                             "scalar atomics (novec), P2G register cap; e.g. chunked,sort=16,inside,g2p=64 "
-                             "or column,run=64,p2g=80")
+                             "scalar atomics (novec), P2G register cap, G2P leaving the next P2G's affine "
+                             "matrix (carry); e.g. chunked,sort=16,inside,g2p=64 or column,run=64,carry")
     parser.add_argument("--frames", type=int, default=1,
                         help="timed frames of --substeps each, one after the other (each printed, mean reported)")
     args = parser.parse_args()
@@ -332,7 +334,8 @@ def main() -> None:
     def label(r: dict) -> str:
         col = r["column"]
         column = "" if r["p2g"] not in ("column", "slab") else \
-            f" run {col.get('column_run', 32)}" + (" scalar atomics" if col.get("vector_atomics") is False else "")
+            f" run {col.get('column_run', 32)}" + (" scalar atomics" if col.get("vector_atomics") is False else "") + \
+            (" carry" if col.get("carry_affine") else "")
         return f"P2G {r['p2g']}" + column + (f" re-sort/{r['sort_substeps']}" if r["sort_substeps"] else "") + \
             (" array sort inside" if r["resort"] == "inside" else "") + \
             (f" G2P {r['g2p_registers']} regs" if r["g2p_registers"] else "") + \

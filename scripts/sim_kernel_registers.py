@@ -7,7 +7,7 @@ warp) compiles for a given architecture without a driver; the counts are read fr
 memory, or a call stack for the CUDA math library's slow-path helpers (grid_update's 32 B).
 
 Usage:
-    python scripts/sim_kernel_registers.py [--arch 90] [--caps 64] [--p2g-caps 128 80]
+    python scripts/sim_kernel_registers.py [--arch 90] [--caps 64] [--p2g-caps 128 80] [--column-caps 80]
 """
 from __future__ import annotations
 
@@ -69,6 +69,7 @@ def main() -> None:
     parser.add_argument("--arch", type=int, default=90, help="SM architecture (90: H100/H200)")
     parser.add_argument("--caps", type=int, nargs="*", default=[64], help="G2P register caps to try")
     parser.add_argument("--p2g-caps", type=int, nargs="*", default=[128, 80], help="chunked P2G register caps to try")
+    parser.add_argument("--column-caps", type=int, nargs="*", default=[80], help="column P2G register caps to try")
     args = parser.parse_args()
     import warp as wp
 
@@ -79,14 +80,19 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
         for label, k in [("p2g (atomic)", kernels.p2g), ("p2g_chunked", kernels.p2g_chunked),
-                         ("p2g_column", p2g_column.p2g_column), ("grid_update", kernels.grid_update),
-                         ("grid_update_packed", p2g_column.grid_update_packed), ("g2p", kernels.g2p)]:
+                         ("p2g_column", p2g_column.p2g_column), ("p2g_column_carry", p2g_column.p2g_column_carry),
+                         ("p2g_slab", p2g_column.p2g_slab), ("p2g_slab_carry", p2g_column.p2g_slab_carry),
+                         ("grid_update", kernels.grid_update), ("grid_update_packed", p2g_column.grid_update_packed),
+                         ("g2p", kernels.g2p), ("g2p_carry", p2g_column.g2p_carry)]:
             compile_and_report(label, k, args.arch, out)
         for cap in args.caps:
             compile_and_report(f"g2p, cap {cap}", kernels.register_capped(kernels.g2p, cap), args.arch, out)
         for cap in args.p2g_caps:
             compile_and_report(f"p2g_chunked, cap {cap}", kernels.register_capped(kernels.p2g_chunked, cap), args.arch,
                                out)
+        for cap in args.column_caps:
+            compile_and_report(f"p2g_column, cap {cap}", kernels.register_capped(p2g_column.p2g_column, cap),
+                               args.arch, out)
 
 
 if __name__ == "__main__":

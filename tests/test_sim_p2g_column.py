@@ -63,7 +63,7 @@ def scatter_column(sim: MPMSolver, kind: str, max_run: int, index: np.ndarray | 
     from pixie_gs.sim.sort import cell_runs
 
     d = sim.device
-    kernel, per_run = solver_module.COLUMN_KINDS[kind]
+    kernel, _, per_run = solver_module.COLUMN_KINDS[kind]
     keys = sorted_keys(sim, sim.scene) if keys_from is None else keys_from
     starts = wp.zeros(sim.n + 1, dtype=wp.int32, device=d)
     counter = wp.zeros(1, dtype=wp.int32, device=d)
@@ -245,3 +245,62 @@ def test_vector_atomics_are_used_exactly_where_the_compiled_architecture_has_the
         assert not vector_atomics_active(device)
     else:
         assert vector_atomics_active(device) == (wp.get_device(device).get_cuda_compile_arch() >= 90)
+
+
+def test_g2p_carry_stores_the_next_p2g_affine_matrix(device):
+    import warp as wp
+
+    from pixie_gs.sim import kernels, p2g_column
+
+    scene = scene_for_tests()
+    sim = MPMSolver(mixed_block(scene), scene, device, sort_every=0)  # jelly, metal, snow; some held
+    rng = np.random.default_rng(4)
+    sim.F.assign((np.eye(3) + rng.normal(0.0, 0.1, (sim.n, 3, 3))).astype(np.float32))
+    sim.stress.assign(rng.normal(0.0, 50.0, (sim.n, 3, 3)).astype(np.float32))
+    grid_v = wp.array(rng.normal(0.0, 0.5, (*sim.dims, 3)).astype(np.float32), dtype=wp.vec3, device=device)
+    dt = 1e-3
+    outs = []
+    for carry in (False, True):
+        st = sim.state.clone()
+        st.C.assign(np.full((sim.n, 3, 3), 7.0, np.float32))  # to see which C the kernel writes
+        inputs = [st.x, st.v, st.C, st.F, sim.mu, sim.lam, sim.yield_stress, sim.material, st.Jp, sim.fixed_flag,
+                  sim.grid_info, sim.material_params, dt, grid_v, st.stress]
+        wp.launch(p2g_column.g2p_carry if carry else kernels.g2p, dim=sim.n, device=device,
+                  inputs=inputs + ([sim.volume, sim.mass] if carry else []))
+        outs.append(st.numpy())
+    plain, carried = outs
+    held = sim.fixed_flag.numpy() != 0
+    for name in ("x", "v", "F", "Jp"):
+        assert np.array_equal(plain[name], carried[name]), name
+    assert np.abs(plain["stress"][~held]).max() > 1.0  # stressed (Pa)
+    # moving particles: the affine matrix of kernels.mls_affine, C left alone; held: as g2p
+    m = sim.mass.numpy()[:, None, None]
+    k = dt * sim.volume.numpy()[:, None, None] * 4.0 / scene.dx ** 2
+    affine = -k * plain["stress"] + m * plain["C"]
+    assert np.allclose(carried["stress"][~held], affine[~held], rtol=1e-5, atol=1e-6 * np.abs(affine).max())
+    assert np.all(carried["C"][~held] == 7.0)
+    assert np.array_equal(carried["stress"][held], plain["stress"][held]) and not carried["C"][held].any()
+
+
+@pytest.mark.parametrize("kind", KERNELS)
+def test_carried_affine_matrices_give_the_same_frames_and_state(device, kind):
+    """carry_affine only moves where mls_affine is computed: every frame and the state it ends
+    with (C and τ included: the last G2P of a frame stores them as usual) match the plain run."""
+    scene = scene_for_tests()
+    p = mixed_block(scene)  # held particles: their τ and C = 0 stay the P2G's inputs
+    runs = [MPMSolver(p, scene, device, p2g=kind, sort_every=1, sort_substeps=5, carry_affine=c)
+            for c in (False, True)]
+    assert runs[1]._g2p_carry is not None and runs[1]._p2g_carry is not None and runs[0]._g2p_carry is None
+    for _ in range(2):
+        for s in runs:
+            s.step_frame(1 / 60)
+    plain, carried = runs
+    assert carried.substeps_last_frame > 5
+    tol = 0.0 if device == "cpu" else 1e-5  # the CPU sums in the same order: the same floats
+    assert np.abs(plain.positions() - carried.positions()).max() <= tol
+    assert np.abs(plain.velocities() - carried.velocities()).max() <= 10 * tol
+    for name in ("C", "stress"):
+        a, b = (s._to_caller(getattr(s, name).numpy()) for s in runs)
+        assert np.abs(a - b).max() <= 1e-4 * np.abs(a).max() + tol, name
+    with pytest.raises(ValueError, match="carry_affine"):
+        MPMSolver(p, scene, device, p2g="chunked", sort_every=1, carry_affine=True)

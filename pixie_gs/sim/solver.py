@@ -39,9 +39,9 @@ CHUNK = 8  # particles per P2G thread while the particles are in no cell order (
 SORT_SUBSTEPS = 4  # with sorting on, the chunked P2G's cell order is refreshed every this many substeps
 RESORT_SUBSTEP = 16  # resort_inside: the frame's array re-sort goes in at the first index sort from this substep
 COLUMN_RUN = 32  # p2g="column"/"slab": particles per run at most (a run is one column of cells along z)
-# P2G kernels; the column ones (sim/p2g_column.py) with their threads per run
-COLUMN_KINDS = {"column": (p2g_column.p2g_column, p2g_column.COLUMN_THREADS),
-                "slab": (p2g_column.p2g_slab, p2g_column.SLAB_THREADS)}
+# P2G kernels; the column ones (sim/p2g_column.py): kernel, its carry twin, threads per run
+COLUMN_KINDS = {"column": (p2g_column.p2g_column, p2g_column.p2g_column_carry, p2g_column.COLUMN_THREADS),
+                "slab": (p2g_column.p2g_slab, p2g_column.p2g_slab_carry, p2g_column.SLAB_THREADS)}
 P2G_KINDS = ("auto", "chunked", "atomic", *COLUMN_KINDS)
 SORT_MIN_PARTICLES = 50_000  # on a GPU, smaller runs fit in cache and are launch-bound: no sorting
 
@@ -116,12 +116,14 @@ class MPMSolver:
     `vector_atomics` (column, slab): a node's momentum and mass go out as one 16-byte
     atomic on sm_90+ (False: four scalar atomics). `p2g_max_registers`: compile the P2G kernel
     with at most this many registers per CUDA thread (None: the compiler's choice).
+    `carry_affine` (column, slab): inside a frame each G2P but the last stores the next P2G's
+    affine matrix (p2g_column.g2p_carry) in place of C and τ, which the last one stores as usual.
     """
 
     def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int | None = None,
                  p2g: str = "auto", sort_substeps: int | None = None, resort_inside: bool = False,
                  g2p_max_registers: int | None = None, column_run: int | None = None, vector_atomics: bool = True,
-                 p2g_max_registers: int | None = None) -> None:
+                 p2g_max_registers: int | None = None, carry_affine: bool = False) -> None:
         particles.validate()
         self.scene = scene
         self.device = resolve_warp_device(device)
@@ -156,6 +158,9 @@ class MPMSolver:
         if self.column_run < 1:
             raise ValueError(f"column_run must be >= 1, got {column_run!r}")
         self.vector_atomics = bool(vector_atomics)
+        if carry_affine and p2g not in COLUMN_KINDS:
+            raise ValueError(f"carry_affine needs p2g 'column' or 'slab', got {p2g!r}")
+        self.carry_affine = bool(carry_affine)
         self._packed = p2g in COLUMN_KINDS  # grid_mv (momentum xyz, mass per node) instead of two arrays
         self._runs_p2g = p2g == "chunked" or self._packed  # P2G threads take runs from the cell sort
         self.timing: dict[str, float] = {}
@@ -260,7 +265,9 @@ class MPMSolver:
 
     def _bind_state(self) -> None:
         """Point the recorded P2G and G2P launches at self.state's arrays."""
-        for launch in (self._p2g, self._g2p):
+        for launch in (self._p2g, self._p2g_carry, self._g2p, self._g2p_carry):
+            if launch is None:
+                continue
             takes = {arg.label for arg in launch.kernel.adj.args}
             for name in ARRAY_FIELDS:
                 if name in takes:
@@ -366,8 +373,9 @@ class MPMSolver:
 
     def _set_p2g_index(self, index: wp.array) -> None:
         self._p2g_index = index
-        if self._runs_p2g:
-            self._p2g.set_param_by_name("index", index)
+        for launch in (self._p2g, self._p2g_carry) if self._runs_p2g else ():
+            if launch is not None:
+                launch.set_param_by_name("index", index)
 
     @property
     def n_runs(self) -> int:
@@ -504,7 +512,8 @@ class MPMSolver:
                     self.kernel_timer.mark("sort")
             t = t0 + s * dt
             self._apply_impulses(t + dt)
-            self._substep(dt, t)
+            carry = self.carry_affine and self.rigid is None  # rigid bodies overwrite C and τ after G2P
+            self._substep(dt, t, carry_in=carry and s > 0, carry_out=carry and s < n_sub - 1)
         t_launched = clock()
         self.time_s = t0 + frame_dt_s
         self.state.time_s = self.time_s
@@ -557,13 +566,17 @@ class MPMSolver:
                            self.grid_info, 0.0]
         grid_outputs = [self.grid_mass, self.grid_momentum, self.grid_fixed]
         capped = lambda k: kernels.register_capped(k, self.p2g_max_registers)  # noqa: E731
+        self._p2g_carry = None  # carry_affine: the P2G that reads the affine matrices G2P left
         if self._packed:
-            kernel, per_run = COLUMN_KINDS[self.p2g_kind]
-            self._p2g = wp.launch(capped(kernel), device=d, record_cmd=True,
-                                  dim=p2g_column.column_threads(self.n, self.column_run, self.dims, per_run),
-                                  inputs=particle_inputs + [self.run_start, self.run_count, self.run_key,
-                                                            self._p2g_index, int(self.vector_atomics), self.grid_mv,
-                                                            self.grid_fixed])
+            kernel, kernel_carry, per_run = COLUMN_KINDS[self.p2g_kind]
+            runs = [self.run_start, self.run_count, self.run_key, self._p2g_index, int(self.vector_atomics),
+                    self.grid_mv, self.grid_fixed]
+            threads = p2g_column.column_threads(self.n, self.column_run, self.dims, per_run)
+            self._p2g = wp.launch(capped(kernel), device=d, record_cmd=True, dim=threads,
+                                  inputs=particle_inputs + runs)
+            if self.carry_affine:
+                self._p2g_carry = wp.launch(capped(kernel_carry), device=d, record_cmd=True, dim=threads,
+                                            inputs=particle_inputs + runs)
         elif self.p2g_kind == "chunked":
             self._p2g = wp.launch(capped(kernels.p2g_chunked), dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + [self.run_start, self.run_count, self._p2g_index]
@@ -585,6 +598,12 @@ class MPMSolver:
             inputs=[self.x, self.v, self.C, self.F, self.mu, self.lam, self.yield_stress, self.material,
                     self.Jp, self.fixed_flag, self.grid_info, self.material_params, 0.0, self.grid_velocity,
                     self.stress])
+        self._g2p_carry = None if not self.carry_affine else wp.launch(
+            kernels.register_capped(p2g_column.g2p_carry, self.g2p_max_registers), dim=self.n, device=d,
+            record_cmd=True,
+            inputs=[self.x, self.v, self.C, self.F, self.mu, self.lam, self.yield_stress, self.material,
+                    self.Jp, self.fixed_flag, self.grid_info, self.material_params, 0.0, self.grid_velocity,
+                    self.stress, self.volume, self.mass])
 
     def _clear_grid(self) -> None:
         """Zero the P2G sums (the grid update clears them after each substep)."""
@@ -592,10 +611,13 @@ class MPMSolver:
             if a is not None:
                 a.zero_()
 
-    def _substep(self, dt: float, t: float) -> None:
+    def _substep(self, dt: float, t: float, carry_in: bool = False, carry_out: bool = False) -> None:
+        """One substep of dt s at time t. carry_in: the P2G reads the affine matrices the last G2P
+        left in `stress` (carry_affine); carry_out: this G2P leaves them for the next substep."""
         timer = self.kernel_timer
-        self._p2g.set_param_by_name("dt", dt)
-        self._p2g.launch()
+        p2g = self._p2g_carry if carry_in else self._p2g
+        p2g.set_param_by_name("dt", dt)
+        p2g.launch()
         if timer is not None:
             timer.mark("p2g")
         box_lo, box_shape = self._active_box()
@@ -614,8 +636,9 @@ class MPMSolver:
             timer.mark("grid")
         if self.rigid is not None:  # momentum in from the grid, one rigid step (sim/rigid.py)
             self.rigid.advance(self.grid_info, self.grid_velocity, box_lo, box_shape, *self._rigid_walls, dt)
-        self._g2p.set_param_by_name("dt", dt)
-        self._g2p.launch()
+        g2p = self._g2p_carry if carry_out else self._g2p
+        g2p.set_param_by_name("dt", dt)
+        g2p.launch()
         if self.rigid is not None:  # velocity out: rigid particles take their body's motion
             self.rigid.place(self.x, self.v, self.C, self.F, self.stress, self.order)
         if timer is not None:
