@@ -251,9 +251,10 @@ P2G_CHOICES = ("auto", "chunked", "atomic", "column", "slab")
 
 
 def parse_variant(text: str) -> tuple[str, int, str, int | None, dict]:
-    """'KIND[,sort=K][,inside][,g2p=R][,run=L][,novec][,p2g=R][,carry]' → (P2G kind, re-sort interval
-    (0: default), "start" or "inside", G2P register cap or None, column-P2G options: particles per
-    run L, scalar instead of vector atomics, P2G register cap R, affine matrices carried from G2P)."""
+    """'KIND[,sort=K][,inside][,g2p=R][,run=L][,novec][,p2g=R][,carry][,block=B]' → (P2G kind, re-sort
+    interval (0: default), "start" or "inside", G2P register cap or None, column-P2G options:
+    particles per run L, scalar instead of vector atomics, P2G register cap R, affine matrices
+    carried from G2P, P2G launched in blocks of B threads)."""
     kind, *opts = text.split(",")
     k_sort, resort, regs, column = 0, "start", None, {}
     for opt in opts:
@@ -271,6 +272,8 @@ def parse_variant(text: str) -> tuple[str, int, str, int | None, dict]:
             column["p2g_max_registers"] = int(opt[4:])
         elif opt == "carry":
             column["carry_affine"] = True
+        elif opt.startswith("block="):
+            column["p2g_block_dim"] = int(opt[6:])
         else:
             raise SystemExit(f"--variant {text!r}: unknown option {opt!r}")
     if kind not in P2G_CHOICES:
@@ -300,13 +303,14 @@ def main() -> None:
                         help="sorted order, chunked P2G: the frame's array re-sort at the frame start (the "
                              "solver's default) or inside the frame in place of an index sort (resort_inside)")
     parser.add_argument("--variant", action="append", default=[],
-                        metavar="KIND[,sort=K][,inside][,g2p=R][,run=L][,novec][,p2g=R][,carry]",
+                        metavar="KIND[,sort=K][,inside][,g2p=R][,run=L][,novec][,p2g=R][,carry][,block=B]",
                         help="a sorted-order variant (repeatable; replaces the --p2g x --sort-substeps x "
                              "--resort product for the sorted order): P2G kind, in-frame index re-sort "
                              "interval K, array re-sort inside the frame, G2P compiled with at most R "
                              "registers per CUDA thread; for column/slab: at most L particles per run, "
                              "scalar atomics (novec), P2G register cap, G2P leaving the next P2G's affine "
-                             "matrix (carry); e.g. chunked,sort=16,inside,g2p=64 or column,run=64,carry")
+                             "matrix (carry), P2G blocks of B threads; e.g. chunked,sort=16,inside,g2p=64 or "
+                             "column,run=64,carry,block=128")
     parser.add_argument("--frames", type=int, default=1,
                         help="timed frames of --substeps each, one after the other (each printed, mean reported)")
     args = parser.parse_args()
@@ -335,7 +339,8 @@ def main() -> None:
         col = r["column"]
         column = "" if r["p2g"] not in ("column", "slab") else \
             f" run {col.get('column_run', 32)}" + (" scalar atomics" if col.get("vector_atomics") is False else "") + \
-            (" carry" if col.get("carry_affine") else "")
+            (" carry" if col.get("carry_affine") else "") + \
+            (f" blocks of {col['p2g_block_dim']}" if col.get("p2g_block_dim") else "")
         return f"P2G {r['p2g']}" + column + (f" re-sort/{r['sort_substeps']}" if r["sort_substeps"] else "") + \
             (" array sort inside" if r["resort"] == "inside" else "") + \
             (f" G2P {r['g2p_registers']} regs" if r["g2p_registers"] else "") + \

@@ -1,7 +1,7 @@
 """Registers per thread and local-memory (spill) frame of the MPM's CUDA kernels, without a GPU.
 
 Why: whether a kernel waits on memory depends on how many warps an SM can keep resident, which
-its register count decides (65,536 registers per SM; blocks of 256 threads). NVRTC (bundled with
+its register count decides (65,536 registers per SM; Warp's blocks of 256 threads, or 128). NVRTC (bundled with
 warp) compiles for a given architecture without a driver; the counts are read from the cubin's
 .nv.info attributes (EIATTR_REGCOUNT, EIATTR_FRAME_SIZE). A frame above 0 means spills to local
 memory, or a call stack for the CUDA math library's slow-path helpers (grid_update's 32 B).
@@ -51,6 +51,16 @@ def cubin_kernel_info(path: Path) -> dict[str, dict[str, int]]:
     return info
 
 
+def resident_warps(regs: int, block_threads: int) -> int:
+    """Warps an sm_90 SM keeps resident for a kernel of `regs` registers per thread in blocks of
+    `block_threads` (65,536 registers, allocated per warp in units of 256; at most 64 warps)."""
+    if regs <= 0:
+        return 0
+    per_warp = -(-regs * 32 // 256) * 256
+    warps_per_block = block_threads // 32
+    return min(64, 65536 // (per_warp * warps_per_block) * warps_per_block)
+
+
 def compile_and_report(label: str, kernel, arch: int, out_dir: Path) -> None:
     import warp as wp
 
@@ -59,9 +69,8 @@ def compile_and_report(label: str, kernel, arch: int, out_dir: Path) -> None:
     for sym, v in cubin_kernel_info(Path(paths[0])).items():
         if entry.search(sym):
             regs = v.get("regs", 0)
-            warps = min(64, 65536 // (max(regs, 1) * 32 * 8) * 8) if regs else 0  # blocks of 256 threads
             print(f"{label:<28} {regs:>4} registers  spill frame {v.get('frame', 0):>4} B  "
-                  f"≤ {warps} resident warps/SM")
+                  f"≤ {resident_warps(regs, 256)} resident warps/SM ({resident_warps(regs, 128)} in blocks of 128)")
 
 
 def main() -> None:

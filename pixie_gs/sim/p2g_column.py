@@ -147,6 +147,30 @@ def _column_kernel(carry: bool) -> wp.Kernel:
                 affine = carried_affine(p, held, dt, volume, stress, m, C, grid)
             else:
                 affine = mls_affine(dt, volume[p], stress[p], m, C[p], grid)
+            pi = base[0] + a
+            pj = base[1] + b
+            kb = base[2]
+            inside = pi == gi and pj == gj and kb >= cur  # else: left the run's column since the sort
+            if inside and kb > cur:  # nodes below kb are complete: out, and the window moves up
+                shift = kb - cur
+                flush_node(grid_mv, gi, gj, cur, acc0, vector_atomics)
+                if shift >= 2:
+                    flush_node(grid_mv, gi, gj, cur + 1, acc1, vector_atomics)
+                if shift >= 3:
+                    flush_node(grid_mv, gi, gj, cur + 2, acc2, vector_atomics)
+                if shift == 1:
+                    acc0 = acc1
+                    acc1 = acc2
+                    acc2 = wp.vec4(0.0)
+                elif shift == 2:
+                    acc0 = acc2
+                    acc1 = wp.vec4(0.0)
+                    acc2 = wp.vec4(0.0)
+                else:
+                    acc0 = wp.vec4(0.0)
+                    acc1 = wp.vec4(0.0)
+                    acc2 = wp.vec4(0.0)
+                cur = kb
             w_ab = bspline_weight(fx[0], a) * bspline_weight(fx[1], b)
             wz = bspline_weights(fx[2])
             # momentum w·(m v + affine·dpos), dpos = ((a, b, c) − fx)·dx, for c = 0, 1, 2
@@ -160,38 +184,15 @@ def _column_kernel(carry: bool) -> wp.Kernel:
             n0 = wp.vec4(w0 * q[0], w0 * q[1], w0 * q[2], w0 * m)
             n1 = wp.vec4(w1 * q1[0], w1 * q1[1], w1 * q1[2], w1 * m)
             n2 = wp.vec4(w2 * q2[0], w2 * q2[1], w2 * q2[2], w2 * m)
-            pi = base[0] + a
-            pj = base[1] + b
-            kb = base[2]
             if held:
                 wp.atomic_add(grid_fixed, pi, pj, kb, w0)
                 wp.atomic_add(grid_fixed, pi, pj, kb + 1, w1)
                 wp.atomic_add(grid_fixed, pi, pj, kb + 2, w2)
-            if pi == gi and pj == gj and kb >= cur:
-                shift = kb - cur
-                if shift == 1:  # node cur is complete: out, and the window moves up one node
-                    flush_node(grid_mv, gi, gj, cur, acc0, vector_atomics)
-                    acc0 = acc1
-                    acc1 = acc2
-                    acc2 = wp.vec4(0.0)
-                elif shift == 2:
-                    flush_node(grid_mv, gi, gj, cur, acc0, vector_atomics)
-                    flush_node(grid_mv, gi, gj, cur + 1, acc1, vector_atomics)
-                    acc0 = acc2
-                    acc1 = wp.vec4(0.0)
-                    acc2 = wp.vec4(0.0)
-                elif shift > 2:
-                    flush_node(grid_mv, gi, gj, cur, acc0, vector_atomics)
-                    flush_node(grid_mv, gi, gj, cur + 1, acc1, vector_atomics)
-                    flush_node(grid_mv, gi, gj, cur + 2, acc2, vector_atomics)
-                    acc0 = wp.vec4(0.0)
-                    acc1 = wp.vec4(0.0)
-                    acc2 = wp.vec4(0.0)
-                cur = kb
+            if inside:
                 acc0 = acc0 + n0
                 acc1 = acc1 + n1
                 acc2 = acc2 + n2
-            else:  # left the run's column since the sort, or below the window: its own nodes, directly
+            else:  # out of the column, or below the window: its own nodes, directly
                 add_node(grid_mv, pi, pj, kb, n0, vector_atomics)
                 add_node(grid_mv, pi, pj, kb + 1, n1, vector_atomics)
                 add_node(grid_mv, pi, pj, kb + 2, n2, vector_atomics)

@@ -118,12 +118,15 @@ class MPMSolver:
     with at most this many registers per CUDA thread (None: the compiler's choice).
     `carry_affine` (column, slab): inside a frame each G2P but the last stores the next P2G's
     affine matrix (p2g_column.g2p_carry) in place of C and τ, which the last one stores as usual.
+    `p2g_block_dim`: CUDA threads per block of the P2G launch (None: Warp's 256; at 96 registers
+    per thread, blocks of 128 let 20 warps per SM stay resident instead of 16).
     """
 
     def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int | None = None,
                  p2g: str = "auto", sort_substeps: int | None = None, resort_inside: bool = False,
                  g2p_max_registers: int | None = None, column_run: int | None = None, vector_atomics: bool = True,
-                 p2g_max_registers: int | None = None, carry_affine: bool = False) -> None:
+                 p2g_max_registers: int | None = None, carry_affine: bool = False,
+                 p2g_block_dim: int | None = None) -> None:
         particles.validate()
         self.scene = scene
         self.device = resolve_warp_device(device)
@@ -161,6 +164,7 @@ class MPMSolver:
         if carry_affine and p2g not in COLUMN_KINDS:
             raise ValueError(f"carry_affine needs p2g 'column' or 'slab', got {p2g!r}")
         self.carry_affine = bool(carry_affine)
+        self.p2g_block_dim = p2g_block_dim
         self._packed = p2g in COLUMN_KINDS  # grid_mv (momentum xyz, mass per node) instead of two arrays
         self._runs_p2g = p2g == "chunked" or self._packed  # P2G threads take runs from the cell sort
         self.timing: dict[str, float] = {}
@@ -572,11 +576,12 @@ class MPMSolver:
             runs = [self.run_start, self.run_count, self.run_key, self._p2g_index, int(self.vector_atomics),
                     self.grid_mv, self.grid_fixed]
             threads = p2g_column.column_threads(self.n, self.column_run, self.dims, per_run)
+            block = {} if self.p2g_block_dim is None else {"block_dim": int(self.p2g_block_dim)}
             self._p2g = wp.launch(capped(kernel), device=d, record_cmd=True, dim=threads,
-                                  inputs=particle_inputs + runs)
+                                  inputs=particle_inputs + runs, **block)
             if self.carry_affine:
                 self._p2g_carry = wp.launch(capped(kernel_carry), device=d, record_cmd=True, dim=threads,
-                                            inputs=particle_inputs + runs)
+                                            inputs=particle_inputs + runs, **block)
         elif self.p2g_kind == "chunked":
             self._p2g = wp.launch(capped(kernels.p2g_chunked), dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + [self.run_start, self.run_count, self._p2g_index]
