@@ -5,6 +5,8 @@
 #             opt-in variants on the same frames (ratios against the default) (~2 min)
 #   diagnose  the 20k-Gaussian, 2-second diagnose runtime case (target <= 5 s)  (~1 min)
 #   batch     the model process alone, then 1,000 assets of 100k Gaussians in batch mode (>= 10/s)  (~5 min)
+#   p2g       the column P2G's CUDA tests, then its variants against the default chunked P2G on the
+#             same frames at 1M and 4M particles (issue 14's throughput line)    (~4 min)
 # usage, from the repo root, Warp on PYTHONPATH for tests/sim/diagnose (batch needs none):
 #   OUT=/tmp/gpu scripts/gpu_benchmarks.sh tests sim diagnose   # one call
 #   OUT=/tmp/gpu scripts/gpu_benchmarks.sh batch                # a second call
@@ -41,7 +43,17 @@ run_part() {
       timeout 330 python3 benchmarks/bench_batch_annotate.py --count 1000 --gaussians 100000 --device cuda \
         --pools process --workers 12 --model-threads 3 --loop-files 3 --budget-s 230 >"$OUT/batch.txt" 2>&1
       tr '\r' '\n' <"$OUT/batch.txt" | grep -E "assets/s|CPU time|byte-identical|threads \(most" | tail -10 ;;
-    *) echo "unknown part $1 (tests, sim, diagnose, batch)"; return 2 ;;
+    p2g)
+      PIXIE_TEST_DEVICES=cuda timeout 110 python3 -m pytest -q -p no:cacheprovider tests/test_sim_p2g_column.py \
+        tests/test_sim_kernels.py >"$OUT/p2g_tests.txt" 2>&1
+      tail -3 "$OUT/p2g_tests.txt"
+      timeout 125 python3 benchmarks/bench_sim_throughput.py --device cuda --sizes 1000000 4000000 --order sorted \
+        --frames 3 --variant auto --variant column,carry --variant column --variant column,novec \
+        --variant column,carry,run=64 --variant column,carry,block=128 --variant slab,carry >"$OUT/p2g_sim.txt" 2>&1
+      grep -E "^device" "$OUT/p2g_sim.txt" | cut -c1-160
+      grep -E "^warp|per substep|vs baseline|issue 14" "$OUT/p2g_sim.txt" | sed -E 's/ \(kernels alone.*//; s/\[.*//' \
+        | cut -c1-190 ;;
+    *) echo "unknown part $1 (tests, sim, diagnose, batch, p2g)"; return 2 ;;
   esac
 }
 for part in "$@"; do
