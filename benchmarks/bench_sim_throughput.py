@@ -352,7 +352,8 @@ def main() -> None:
                 and not (o != "sorted" and k in ("column", "slab"))]  # the column P2Gs need sorting
         runs += [("sorted", *parse_variant(v)) for v in args.variant if "sorted" in args.order]
         for order, p2g, k_sort, resort, g2p_registers, column in runs:
-            resorts = order == "sorted" and (p2g in ("chunked", "column", "slab") or (p2g == "auto" and device != "cpu"))
+            resorts = order == "sorted" and (p2g in ("chunked", "column", "slab")
+                                             or (p2g == "auto" and device != "cpu"))
             if (k_sort != args.sort_substeps[0] or resort != args.resort[0]) and not resorts and g2p_registers is None:
                 continue  # no in-frame re-sort to vary
             r = time_warp(n, device, args.warmup, substeps, order, p2g, k_sort or None, args.frames, resort,

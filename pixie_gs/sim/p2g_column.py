@@ -308,7 +308,8 @@ def _slab_kernel(carry: bool) -> wp.Kernel:
                             acc2[b, 2] += mom[2]
                             acc2[b, 3] += w * m
                     else:  # left the run's column since the sort, or below the window: directly
-                        add_node(grid_mv, pi, base[1] + b, kb + c, wp.vec4(mom[0], mom[1], mom[2], w * m), vector_atomics)
+                        add_node(grid_mv, pi, base[1] + b, kb + c, wp.vec4(mom[0], mom[1], mom[2], w * m),
+                                 vector_atomics)
         for b in range(3):
             flush_row(grid_mv, gi, cj, cur, acc0, b, vector_atomics)
             flush_row(grid_mv, gi, cj, cur + 1, acc1, b, vector_atomics)
