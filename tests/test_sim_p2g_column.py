@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pixie_gs.sim import MPMSolver, Particles, Scene
+from pixie_gs.sim import MPMSolver, Particles, Scene, kernels, p2g_column
 from pixie_gs.sim import solver as solver_module
 from test_sim_kernels import MarkRecorder, device, mixed_block, moving_block, scene_for_tests  # noqa: F401
 from test_sim_physics import join
@@ -219,19 +219,79 @@ def test_solver_with_column_p2g_agrees_with_the_atomic_one(device, kind):
 
 
 def test_column_p2g_with_a_rigid_body_agrees_with_the_atomic_one(device):
-    """Rigid coupling reads the node masses: the packed grid hands them over (p2g_column.packed_mass)."""
+    """Rigid coupling reads the node masses: the packed grid hands them over (p2g_column.packed_mass).
+    Rigid bodies overwrite C and τ after G2P, so a solver asked to carry the affine matrices (and
+    the default, which does so on a GPU) computes them in P2G instead once a body exists."""
     scene = free_scene(gravity=[0, 0, 0])
     rigid = Particles.lattice((-0.2, -0.05, -0.05), (-0.1, 0.05, 0.05), scene.dx / 2, v=[2.0, 0, 0], **AL)
     soft = Particles.lattice((-0.06, -0.05, -0.05), (0.04, 0.05, 0.05), scene.dx / 2, E=2e4, nu=0.3,
                              density=1000.0, material_id=0)
     both = join(rigid, soft)
-    runs = [MPMSolver(both, scene, device, p2g=kind, sort_every=1) for kind in ("atomic", "column")]
+    configs = ({"p2g": "atomic"}, {"p2g": "column"}, {"p2g": "column", "carry_affine": True}, {})  # {}: auto
+    runs = [MPMSolver(both, scene, device, sort_every=1, **c) for c in configs]
+    assert runs[2].carrying and runs[3].carrying == (device != "cpu")  # no body yet
     for _ in range(4):
         for s in runs:
             s.step_frame(1 / 60)
-    assert all(s.rigid is not None for s in runs)
-    assert np.abs(runs[0].positions() - runs[1].positions()).max() < 1e-5
+    assert all(s.rigid is not None and not s.carrying for s in runs)
+    assert runs[2].carry_affine and runs[3].p2g_kind == ("atomic" if device == "cpu" else "column")
+    for s in runs[1:]:
+        assert np.abs(runs[0].positions() - s.positions()).max() < 1e-5
+    if device == "cpu":  # carrying off: the column solver asked to carry runs the plain one's floats
+        assert np.array_equal(runs[1].positions(), runs[2].positions())
     assert np.abs(runs[0].velocities()[len(rigid):, 0]).max() > 0.05  # the soft block was hit
+
+
+def test_p2g_choice_per_device_and_options():
+    """solver.p2g_choice, the rule MPMSolver applies (pure: the GPU rows run without a GPU)."""
+    from pixie_gs.sim.solver import p2g_choice
+
+    gpu = ("column", True, 128)  # GPU_P2G, GPU_CARRY_AFFINE, GPU_P2G_BLOCK_DIM
+    assert (solver_module.GPU_P2G, solver_module.GPU_CARRY_AFFINE, solver_module.GPU_P2G_BLOCK_DIM) == gpu
+    rows = [  # (p2g, device, sort_every, carry_affine, block) -> (kind, carry, block)
+        (("auto", "cuda:0", 1, None, None), gpu),
+        (("auto", "cuda:0", 0, None, None), ("atomic", False, None)),  # a GPU without sorting (small runs)
+        (("auto", "cpu", 1, None, None), ("atomic", False, None)),  # the CPU: as before
+        (("auto", "cpu", 0, None, None), ("atomic", False, None)),
+        (("auto", "cuda:0", 1, False, None), ("column", False, 128)),  # options given are kept
+        (("auto", "cuda:0", 1, None, 256), ("column", True, 256)),
+        (("column", "cuda:0", 1, None, None), ("column", False, None)),  # a kind by name: as before
+        (("column", "cuda:0", 1, True, 128), gpu),
+        (("chunked", "cuda:0", 1, None, None), ("chunked", False, None)),
+        (("slab", "cpu", 1, True, None), ("slab", True, None)),
+        (("atomic", "cuda:0", 1, None, None), ("atomic", False, None)),
+    ]
+    for args, expected in rows:
+        assert p2g_choice(*args) == expected, args
+    for args, message in ((("auto", "cpu", 1, True, None), "carry_affine"), (("chunked", "cuda:0", 1, True, None),
+                          "carry_affine"), (("column", "cuda:0", 0, None, None), "cell order"),
+                          (("blocks", "cpu", 1, None, None), "p2g must be")):
+        with pytest.raises(ValueError, match=message):
+            p2g_choice(*args)
+
+
+def test_auto_p2g_is_the_column_kernel_carrying_on_a_gpu_and_atomic_on_the_cpu(device):
+    """The default P2G per device (solver.GPU_P2G and friends: the fastest measured on the H100)."""
+    scene = scene_for_tests()
+    p = mixed_block(scene)  # 1,960 particles: a GPU does not sort so few (SORT_MIN_PARTICLES)
+    unsorted = MPMSolver(p, scene, device)
+    assert (unsorted.sort_every, unsorted.p2g_kind) == ((1, "atomic") if device == "cpu" else (0, "atomic"))
+    sim = MPMSolver(p, scene, device, sort_every=1)
+    if device == "cpu":  # unchanged: the atomic P2G, nothing carried, no block size set
+        for s in (unsorted, sim):
+            assert (s.p2g_kind, s.carry_affine, s.p2g_block_dim, s._p2g_carry) == ("atomic", False, None, None)
+        with pytest.raises(ValueError, match="carry_affine"):
+            MPMSolver(p, scene, device, sort_every=1, carry_affine=True)
+    else:
+        assert not unsorted.carry_affine and unsorted._p2g.kernel is kernels.p2g
+        assert (sim.p2g_kind, sim.carry_affine, sim.p2g_block_dim) == ("column", True, 128)
+        assert sim._p2g.kernel is p2g_column.p2g_column and sim._p2g_carry.kernel is p2g_column.p2g_column_carry
+        assert sim._p2g.block_dim == sim._p2g_carry.block_dim == 128 and sim.carrying
+        own = MPMSolver(p, scene, device, sort_every=1, carry_affine=False, p2g_block_dim=64)  # given: kept
+        assert (own.p2g_kind, own.carry_affine, own._p2g_carry, own._p2g.block_dim) == ("column", False, None, 64)
+    for kind in ("column", "chunked"):  # a kind asked for by name: its options as before (no carry, 256)
+        named = MPMSolver(p, scene, device, p2g=kind, sort_every=1)
+        assert (named.p2g_kind, named.carry_affine, named.p2g_block_dim) == (kind, False, None)
 
 
 def test_column_p2g_needs_sorting_and_says_so():
@@ -354,12 +414,15 @@ def test_carried_affine_matrices_give_the_same_frames_and_state(device, kind):
     scene = scene_for_tests()
     p = sheared_block(scene)
 
-    def run(carry: bool, nudge: bool = False) -> tuple[MPMSolver, dict[str, np.ndarray]]:
-        sim = MPMSolver(p, scene, device, p2g=kind, sort_every=1, sort_substeps=5, carry_affine=carry)
+    def run(carry: bool, nudge: bool = False, inside: bool = False) -> tuple[MPMSolver, dict[str, np.ndarray]]:
+        sim = MPMSolver(p, scene, device, p2g=kind, sort_every=1, sort_substeps=5, carry_affine=carry,
+                        resort_inside=inside)
+        sim.kernel_timer = MarkRecorder()
         if nudge:
             sim.v.assign(np.nextafter(sim.v.numpy(), np.float32(np.inf)))
         for _ in range(2):
             sim.step_frame(1 / 60)
+        assert ("resort" in sim.kernel_timer.names) == inside
         return sim, {name: sim._to_caller(getattr(sim, name).numpy()) for name in STATE_FIELDS}
 
     plain_sim, plain = run(False)
@@ -367,16 +430,23 @@ def test_carried_affine_matrices_give_the_same_frames_and_state(device, kind):
     assert carried_sim._g2p_carry is not None and carried_sim._p2g_carry is not None
     assert plain_sim._g2p_carry is None and carried_sim.substeps_last_frame > 5
     again, nudged = run(False)[1], run(False, nudge=True)[1]
+    # the second frame's array re-sort inside the frame (resort_inside): it permutes `stress`
+    # while it holds affine matrices
+    plain_inside, carried_inside = run(False, inside=True)[1], run(True, inside=True)[1]
     for name in STATE_FIELDS:
         scale = np.abs(plain[name]).max()
         floor = max(np.abs(plain[name] - again[name]).max(), np.abs(plain[name] - nudged[name]).max())
         diff = np.abs(plain[name] - carried[name]).max()
         report = f"{name}: max |plain| {scale:.3g}, |carried - plain| {diff:.3g}, floor {floor:.3g}"
         assert floor <= (1e-3 if name in ("x", "v", "F") else 2e-2) * scale, report  # the test can resolve
+        diff_inside = np.abs(plain_inside[name] - carried_inside[name]).max()
         if device == "cpu":
             assert np.array_equal(plain[name], again[name]), report  # deterministic
             assert np.array_equal(plain[name], carried[name]), report  # bit-identical
+            assert np.array_equal(plain_inside[name], carried_inside[name]), f"{report} (re-sort inside)"
         else:
             assert diff <= CARRY_NOISE_FACTOR * floor + 1e-6 * scale, report
+            assert diff_inside <= CARRY_NOISE_FACTOR * floor + 1e-6 * scale, \
+                f"{report}, re-sort inside {diff_inside:.3g}"
     with pytest.raises(ValueError, match="carry_affine"):
         MPMSolver(p, scene, device, p2g="chunked", sort_every=1, carry_affine=True)

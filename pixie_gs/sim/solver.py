@@ -43,6 +43,10 @@ COLUMN_RUN = 32  # p2g="column"/"slab": particles per run at most (a run is one 
 COLUMN_KINDS = {"column": (p2g_column.p2g_column, p2g_column.p2g_column_carry, p2g_column.COLUMN_THREADS),
                 "slab": (p2g_column.p2g_slab, p2g_column.p2g_slab_carry, p2g_column.SLAB_THREADS)}
 P2G_KINDS = ("auto", "chunked", "atomic", *COLUMN_KINDS)
+# p2g="auto" on a GPU with sorting on: the fastest measured configuration (H100, docs/benchmarks.md
+# issue 14: 1.23x / 1.43x the chunked P2G at 1M / 4M particles): the column P2G, affine matrices
+# carried from G2P, P2G blocks of 128 threads (96 registers per thread: 20 resident warps per SM)
+GPU_P2G, GPU_CARRY_AFFINE, GPU_P2G_BLOCK_DIM = "column", True, 128
 SORT_MIN_PARTICLES = 50_000  # on a GPU, smaller runs fit in cache and are launch-bound: no sorting
 
 FAR = 1.0e30  # "unbounded" for regions and time windows passed to kernels
@@ -59,6 +63,29 @@ def lame_parameters(E_pa: np.ndarray, nu: np.ndarray) -> tuple[np.ndarray, np.nd
     """(μ, λ) in Pa from Young's modulus and Poisson ratio."""
     E, nu = np.asarray(E_pa, dtype=np.float64), np.asarray(nu, dtype=np.float64)
     return E / (2.0 * (1.0 + nu)), E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+
+
+def p2g_choice(p2g: str, device: str, sort_every: int, carry_affine: bool | None = None,
+               block_dim: int | None = None) -> tuple[str, bool, int | None]:
+    """(P2G kind, carry_affine, P2G block size or None for Warp's 256) that MPMSolver runs for its
+    options `p2g`, `carry_affine`, `p2g_block_dim` on `device` with `sort_every`: "auto" is GPU_P2G
+    with GPU_CARRY_AFFINE and GPU_P2G_BLOCK_DIM (each unless given) on a GPU that sorts, else
+    "atomic"; a kind named is run with the options given (None: off, 256). ValueError for
+    choices that cannot run."""
+    if p2g not in P2G_KINDS:
+        raise ValueError(f"p2g must be one of {', '.join(P2G_KINDS)}, got {p2g!r}")
+    if p2g in COLUMN_KINDS and sort_every == 0:
+        raise ValueError(f"p2g={p2g!r} needs the particles in cell order (sort_every > 0)")
+    auto_gpu = p2g == "auto" and device != "cpu" and sort_every > 0
+    if p2g == "auto":
+        p2g = GPU_P2G if auto_gpu else "atomic"
+    if carry_affine is None:
+        carry_affine = GPU_CARRY_AFFINE and auto_gpu
+    if carry_affine and p2g not in COLUMN_KINDS:
+        raise ValueError(f"carry_affine needs p2g 'column' or 'slab', got {p2g!r}")
+    if block_dim is None and auto_gpu:
+        block_dim = GPU_P2G_BLOCK_DIM
+    return p2g, bool(carry_affine), None if block_dim is None else int(block_dim)
 
 
 def held_particles(particles: Particles, scene: Scene) -> np.ndarray:
@@ -99,9 +126,10 @@ class MPMSolver:
     after each kernel launch: benchmarks time kernels with it).
     The scene is read once, at construction; build a new solver to change it.
     `sort_every`: re-sort the particle arrays into cell order every this many frames (0: keep
-    the caller's order, never sort; None: every frame, except on a GPU below SORT_MIN_PARTICLES); inside a frame the chunked P2G gets a fresh cell order (an
-    index, the arrays stay put) every `sort_substeps` substeps (None: SORT_SUBSTEPS). Sorted and
-    unsorted runs agree to float rounding. `resort_inside`: with the chunked P2G, a frame's
+    the caller's order, never sort; None: every frame, except on a GPU below SORT_MIN_PARTICLES);
+    inside a frame the chunked and column P2Gs get a fresh cell order (an index, the arrays stay
+    put) every `sort_substeps` substeps (None: SORT_SUBSTEPS). Sorted and unsorted runs agree to
+    float rounding. `resort_inside`: with the chunked or column P2G, a frame's
     re-sort of the arrays replaces its first in-frame index sort from substep RESORT_SUBSTEP on,
     instead of running at the frame start, where the device waits while the host issues it.
     `g2p_max_registers`: compile G2P with at most this many registers per CUDA thread
@@ -111,21 +139,26 @@ class MPMSolver:
     grid, kernels.p2g_chunked), "atomic" (one global atomic per particle and node, kernels.p2g, the
     plain reference), "column" (nine threads per run of up to `column_run` particles of one column
     of cells, each sliding a 3-node window along z, into a packed vec4 grid: sim/p2g_column.py;
-    needs sorting), "slab" (the same with three threads per run, 3×3-node windows) or "auto"
-    (chunked on a GPU when sorting, else atomic; on the CPU atomic measured faster).
+    needs sorting), "slab" (the same with three threads per run, 3×3-node windows) or "auto":
+    on a GPU when sorting, GPU_P2G (column) with carry_affine and p2g_block_dim GPU_P2G_BLOCK_DIM
+    (128) unless those are given; else (the CPU, where atomic measured fastest, or a GPU without
+    sorting) atomic. The chosen values are in p2g_kind, carry_affine, p2g_block_dim.
     `vector_atomics` (column, slab): a node's momentum and mass go out as one 16-byte
     atomic on sm_90+ (False: four scalar atomics). `p2g_max_registers`: compile the P2G kernel
     with at most this many registers per CUDA thread (None: the compiler's choice).
     `carry_affine` (column, slab): inside a frame each G2P but the last stores the next P2G's
-    affine matrix (p2g_column.g2p_carry) in place of C and τ, which the last one stores as usual.
-    `p2g_block_dim`: CUDA threads per block of the P2G launch (None: Warp's 256; at 96 registers
-    per thread, blocks of 128 let 20 warps per SM stay resident instead of 16).
+    affine matrix (p2g_column.g2p_carry) in place of C and τ, which the last one stores as usual;
+    never while rigid bodies are present (they overwrite C and τ after G2P: `carrying` says
+    whether frames carry now). None: on where "auto" chose the column P2G, else off.
+    `p2g_block_dim`: CUDA threads per block of the P2G launch (None: GPU_P2G_BLOCK_DIM where "auto"
+    chose the column P2G, else Warp's 256; at 96 registers per thread, blocks of 128 let 20 warps
+    per SM stay resident instead of 16).
     """
 
     def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int | None = None,
                  p2g: str = "auto", sort_substeps: int | None = None, resort_inside: bool = False,
                  g2p_max_registers: int | None = None, column_run: int | None = None, vector_atomics: bool = True,
-                 p2g_max_registers: int | None = None, carry_affine: bool = False,
+                 p2g_max_registers: int | None = None, carry_affine: bool | None = None,
                  p2g_block_dim: int | None = None) -> None:
         particles.validate()
         self.scene = scene
@@ -144,12 +177,7 @@ class MPMSolver:
         if sort_every is None:
             sort_every = 1 if self.device == "cpu" or self.n >= SORT_MIN_PARTICLES else 0
         self.sort_every = int(sort_every)
-        if p2g not in P2G_KINDS:
-            raise ValueError(f"p2g must be one of {', '.join(P2G_KINDS)}, got {p2g!r}")
-        if p2g in COLUMN_KINDS and self.sort_every == 0:
-            raise ValueError(f"p2g={p2g!r} needs the particles in cell order (sort_every > 0)")
-        if p2g == "auto":
-            p2g = "chunked" if self.device != "cpu" and self.sort_every > 0 else "atomic"
+        p2g, carry_affine, p2g_block_dim = p2g_choice(p2g, self.device, self.sort_every, carry_affine, p2g_block_dim)
         self.p2g_kind = p2g
         self.sort_substeps = SORT_SUBSTEPS if sort_substeps is None else int(sort_substeps)
         if self.sort_substeps < 1:
@@ -161,9 +189,7 @@ class MPMSolver:
         if self.column_run < 1:
             raise ValueError(f"column_run must be >= 1, got {column_run!r}")
         self.vector_atomics = bool(vector_atomics)
-        if carry_affine and p2g not in COLUMN_KINDS:
-            raise ValueError(f"carry_affine needs p2g 'column' or 'slab', got {p2g!r}")
-        self.carry_affine = bool(carry_affine)
+        self.carry_affine = carry_affine
         self.p2g_block_dim = p2g_block_dim
         self._packed = p2g in COLUMN_KINDS  # grid_mv (momentum xyz, mass per node) instead of two arrays
         self._runs_p2g = p2g == "chunked" or self._packed  # P2G threads take runs from the cell sort
@@ -516,7 +542,7 @@ class MPMSolver:
                     self.kernel_timer.mark("sort")
             t = t0 + s * dt
             self._apply_impulses(t + dt)
-            carry = self.carry_affine and self.rigid is None  # rigid bodies overwrite C and τ after G2P
+            carry = self.carrying
             self._substep(dt, t, carry_in=carry and s > 0, carry_out=carry and s < n_sub - 1)
         t_launched = clock()
         self.time_s = t0 + frame_dt_s
@@ -527,6 +553,12 @@ class MPMSolver:
         self._guard(dt)
         self.timing = {"sort_s": t_sorted - t_start, "stats_s": t_stats - t_sorted,
                        "launch_s": t_launched - t_stats, "guard_s": clock() - t_launched}
+
+    @property
+    def carrying(self) -> bool:
+        """Whether a frame carries the affine matrices from G2P to P2G now: carry_affine, and no
+        rigid bodies (they overwrite C and τ after G2P, so the next P2G must compute its own)."""
+        return self.carry_affine and self.rigid is None
 
     def _inside_resort_substep(self, n_sub: int) -> int:
         """Substep before which `resort_inside` re-sorts the arrays: the first in-frame index sort
