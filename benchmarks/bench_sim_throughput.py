@@ -34,7 +34,7 @@ Usage:
     python benchmarks/bench_sim_throughput.py --device cpu --sizes 100000 1000000
     python benchmarks/bench_sim_throughput.py --device cuda          # the H100 figures
     python benchmarks/bench_sim_throughput.py --device cuda --sizes 1000000 4000000 --order sorted \
-        --frames 3 --variant auto --variant chunked      # the default against the previous one
+        --frames 3 --variant chunked --variant auto      # the default against the previous one
 """
 from __future__ import annotations
 
@@ -317,7 +317,7 @@ def main() -> None:
                         help="in-frame index re-sort interval(s) in substeps for the sorted order "
                              "(0: the solver's default)")
     parser.add_argument("--resort", nargs="+", default=["start"], choices=["start", "inside"],
-                        help="sorted order, chunked P2G: the frame's array re-sort at the frame start (the "
+                        help="sorted order, chunked/column P2G: the frame's array re-sort at the frame start (the "
                              "solver's default) or inside the frame in place of an index sort (resort_inside)")
     parser.add_argument("--variant", action="append", default=[],
                         metavar="KIND[,sort=K][,inside][,g2p=R][,run=L][,novec][,p2g=R][,carry][,block=B]",

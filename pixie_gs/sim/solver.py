@@ -36,7 +36,7 @@ from .sort import cell_order, cell_runs, chunk_runs, permute_in_place
 from .state import ARRAY_FIELDS, State
 
 CHUNK = 8  # particles per P2G thread while the particles are in no cell order (sort_every = 0)
-SORT_SUBSTEPS = 4  # with sorting on, the chunked P2G's cell order is refreshed every this many substeps
+SORT_SUBSTEPS = 4  # with sorting on, the run-based P2Gs' cell order is refreshed every this many substeps
 RESORT_SUBSTEP = 16  # resort_inside: the frame's array re-sort goes in at the first index sort from this substep
 COLUMN_RUN = 32  # p2g="column"/"slab": particles per run at most (a run is one column of cells along z)
 # P2G kernels; the column ones (sim/p2g_column.py): kernel, its carry twin, threads per run
@@ -387,7 +387,7 @@ class MPMSolver:
         self._set_p2g_index(self._identity)
 
     def _reindex(self) -> None:
-        """A fresh cell order for the chunked P2G only: sort an index, not the arrays (cheap, all
+        """A fresh cell order for the run-based P2Gs only: sort an index, not the arrays (cheap, all
         on the device: done every sort_substeps substeps as particles drift between cells)."""
         perm, keys = cell_order(self.x, self.grid_info)
         self._cell_runs(keys)
