@@ -287,8 +287,8 @@ def test_auto_p2g_is_the_column_kernel_carrying_on_a_gpu_and_atomic_on_the_cpu(d
         assert (sim.p2g_kind, sim.carry_affine, sim.p2g_block_dim) == ("column", True, 128)
         assert sim._p2g.kernel is p2g_column.p2g_column and sim._p2g_carry.kernel is p2g_column.p2g_column_carry
         assert sim._p2g.block_dim == sim._p2g_carry.block_dim == 128 and sim.carrying
-        own = MPMSolver(p, scene, device, sort_every=1, carry_affine=False, p2g_block_dim=64)  # given: kept
-        assert (own.p2g_kind, own.carry_affine, own._p2g_carry, own._p2g.block_dim) == ("column", False, None, 64)
+        own = MPMSolver(p, scene, device, sort_every=1, carry_affine=False, p2g_block_dim=256)  # given: kept
+        assert (own.p2g_kind, own.carry_affine, own._p2g_carry, own._p2g.block_dim) == ("column", False, None, 256)
     for kind in ("column", "chunked"):  # a kind asked for by name: its options as before (no carry, 256)
         named = MPMSolver(p, scene, device, p2g=kind, sort_every=1)
         assert (named.p2g_kind, named.carry_affine, named.p2g_block_dim) == (kind, False, None)
