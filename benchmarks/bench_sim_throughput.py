@@ -17,6 +17,12 @@ divergence guard and any re-sort are all inside the timed figure). Figures print
   the launches, and the guard (which includes waiting for the device to finish the frame);
 - memory per particle: bytes of the solver's Warp arrays whose length is the particle count
   (particle state), and all of its Warp arrays (grid included) divided by the particle count;
+- with `--variant`s (sorted order): every variant against the baseline row, timed on the same
+  frames in this run — the chunked P2G (`--variant chunked`, the GPU default before the column
+  P2G) when it is among the variants, else the first variant; the row of the solver's default
+  (`--variant auto`: on a GPU the column P2G carrying affine matrices in blocks of 128) is
+  labelled "default", the chunked one "baseline", and on a GPU a "new default vs baseline" line
+  gives their ratio;
 - baseline ratio: the same substep written straightforwardly in numpy (quadratic B-spline
   MLS-MPM, fixed-corotated stress, scatter with np.bincount), timed in this same run on a small
   block (`--baseline-particles`), and Warp's throughput divided by it. The 100k → 1M scaling
@@ -27,6 +33,8 @@ divergence guard and any re-sort are all inside the timed figure). Figures print
 Usage:
     python benchmarks/bench_sim_throughput.py --device cpu --sizes 100000 1000000
     python benchmarks/bench_sim_throughput.py --device cuda          # the H100 figures
+    python benchmarks/bench_sim_throughput.py --device cuda --sizes 1000000 4000000 --order sorted \
+        --frames 3 --variant chunked --variant auto      # the default against the previous one
 """
 from __future__ import annotations
 
@@ -122,7 +130,11 @@ class KernelTimer:
 
 def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str = "lattice",
               p2g: str = "auto", sort_substeps: int | None = None, frames: int = 1, resort: str = "start",
-              g2p_registers: int | None = None) -> dict:
+              g2p_registers: int | None = None, column: dict | None = None) -> dict:
+    """`column`: the column-P2G options (column_run, vector_atomics, p2g_max_registers, carry_affine,
+    p2g_block_dim) for p2g "column"/"slab" (and "auto", which may choose them); the rest as the
+    command-line options say. The result holds what the solver chose (p2g, column options) and
+    what was asked (`requested` kind; `plain`: no option given)."""
     import warp as wp
 
     from pixie_gs.sim.solver import MPMSolver
@@ -131,7 +143,7 @@ def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str
     n = len(particles)
     sort = {} if order == "sorted" else {"sort_every": 0}  # sorted: the solver's default (every frame)
     solver = MPMSolver(particles, scene, device, p2g=p2g, sort_substeps=sort_substeps,
-                       resort_inside=resort == "inside", g2p_max_registers=g2p_registers, **sort)
+                       resort_inside=resort == "inside", g2p_max_registers=g2p_registers, **(column or {}), **sort)
     dt = float(solver.dt)
     # step_frame(k·dt) runs k substeps of the CFL dt (the solver's own counter says how many)
     solver.step_frame(warmup * dt * (1 - 1e-6))
@@ -166,11 +178,18 @@ def time_warp(n_target: int, device: str, warmup: int, substeps: int, order: str
     x = np.asarray(solver.positions())
     assert np.isfinite(x).all(), "block diverged"
     pp, total = warp_arrays_bytes(solver, n)
-    return {"n": n, "order": order, "p2g": solver.p2g_kind, "seconds": seconds, "cpu_seconds": cpu_seconds, "substeps": substeps,
+    chosen = dict(column or {})
+    if solver.p2g_kind in ("column", "slab"):  # what the solver runs, "auto"'s choices included
+        chosen.update(column_run=solver.column_run, vector_atomics=solver.vector_atomics,
+                      carry_affine=solver.carry_affine, p2g_block_dim=solver.p2g_block_dim)
+    plain = sort_substeps is None and resort == "start" and g2p_registers is None and not column
+    return {"n": n, "order": order, "p2g": solver.p2g_kind, "requested": p2g, "plain": plain, "seconds": seconds,
+            "cpu_seconds": cpu_seconds, "substeps": substeps,
             "rate": float(np.mean(frame_rates)), "frame_rates": frame_rates,
             "sort_substeps": solver.sort_substeps if solver.sort_every > 0 and solver.p2g_kind != "atomic" else None,
             "resort": resort if solver.sort_every > 0 and solver.p2g_kind != "atomic" else "",
-            "g2p_registers": g2p_registers, "bytes_particle_state": pp / n, "bytes_all_per_particle": total / n,
+            "g2p_registers": g2p_registers, "column": chosen, "bytes_particle_state": pp / n,
+            "bytes_all_per_particle": total / n,
             "dt": dt, "host": host, "kernels": kernels, "reduction_s": reduction_s, "sort_s": sort_s}
 
 
@@ -245,11 +264,16 @@ def time_numpy(n_target: int, substeps: int) -> dict:
             "rate": n * substeps / seconds}
 
 
-def parse_variant(text: str) -> tuple[str, int, str, int | None]:
-    """'KIND[,sort=K][,inside][,g2p=R]' → (P2G kind, re-sort interval (0: default), "start" or
-    "inside", G2P register cap or None)."""
+P2G_CHOICES = ("auto", "chunked", "atomic", "column", "slab")
+
+
+def parse_variant(text: str) -> tuple[str, int, str, int | None, dict]:
+    """'KIND[,sort=K][,inside][,g2p=R][,run=L][,novec][,p2g=R][,carry][,block=B]' → (P2G kind, re-sort
+    interval (0: default), "start" or "inside", G2P register cap or None, column-P2G options:
+    particles per run L, scalar instead of vector atomics, P2G register cap R, affine matrices
+    carried from G2P, P2G launched in blocks of B threads)."""
     kind, *opts = text.split(",")
-    k_sort, resort, regs = 0, "start", None
+    k_sort, resort, regs, column = 0, "start", None, {}
     for opt in opts:
         if opt == "inside":
             resort = "inside"
@@ -257,11 +281,21 @@ def parse_variant(text: str) -> tuple[str, int, str, int | None]:
             k_sort = int(opt[5:])
         elif opt.startswith("g2p="):
             regs = int(opt[4:])
+        elif opt.startswith("run="):
+            column["column_run"] = int(opt[4:])
+        elif opt == "novec":
+            column["vector_atomics"] = False
+        elif opt.startswith("p2g="):
+            column["p2g_max_registers"] = int(opt[4:])
+        elif opt == "carry":
+            column["carry_affine"] = True
+        elif opt.startswith("block="):
+            column["p2g_block_dim"] = int(opt[6:])
         else:
             raise SystemExit(f"--variant {text!r}: unknown option {opt!r}")
-    if kind not in ("auto", "chunked", "atomic"):
+    if kind not in P2G_CHOICES:
         raise SystemExit(f"--variant {text!r}: unknown P2G kind {kind!r}")
-    return kind, k_sort, resort, regs
+    return kind, k_sort, resort, regs, column
 
 
 def main() -> None:
@@ -274,20 +308,26 @@ def main() -> None:
     parser.add_argument("--baseline-substeps", type=int, default=3)
     parser.add_argument("--order", nargs="+", default=["random", "sorted"], choices=["lattice", "random", "sorted"],
                         help="particle order(s) to time (see above)")
-    parser.add_argument("--p2g", nargs="+", default=["auto"], choices=["auto", "chunked", "atomic"],
+    parser.add_argument("--p2g", nargs="+", default=["auto"], choices=list(P2G_CHOICES),
                         help="P2G kernel(s): chunked (one thread per same-cell run), atomic (the plain one), "
-                             "auto (solver default: chunked on a GPU, atomic on the CPU)")
+                             "column / slab (9 / 3 threads per run of one column of cells, sliding windows, "
+                             "packed grid; sorted order only), auto (solver default: on a GPU when sorting, "
+                             "column carrying affine matrices, P2G blocks of 128; else atomic)")
     parser.add_argument("--sort-substeps", type=int, nargs="+", default=[0],
                         help="in-frame index re-sort interval(s) in substeps for the sorted order "
                              "(0: the solver's default)")
     parser.add_argument("--resort", nargs="+", default=["start"], choices=["start", "inside"],
-                        help="sorted order, chunked P2G: the frame's array re-sort at the frame start (the "
+                        help="sorted order, chunked/column P2G: the frame's array re-sort at the frame start (the "
                              "solver's default) or inside the frame in place of an index sort (resort_inside)")
-    parser.add_argument("--variant", action="append", default=[], metavar="KIND[,sort=K][,inside][,g2p=R]",
+    parser.add_argument("--variant", action="append", default=[],
+                        metavar="KIND[,sort=K][,inside][,g2p=R][,run=L][,novec][,p2g=R][,carry][,block=B]",
                         help="a sorted-order variant (repeatable; replaces the --p2g x --sort-substeps x "
                              "--resort product for the sorted order): P2G kind, in-frame index re-sort "
                              "interval K, array re-sort inside the frame, G2P compiled with at most R "
-                             "registers per CUDA thread; e.g. chunked,sort=16,inside,g2p=64")
+                             "registers per CUDA thread; for column/slab: at most L particles per run, "
+                             "scalar atomics (novec), P2G register cap, G2P leaving the next P2G's affine "
+                             "matrix (carry), P2G blocks of B threads; e.g. chunked,sort=16,inside,g2p=64 or "
+                             "column,run=64,carry,block=128")
     parser.add_argument("--frames", type=int, default=1,
                         help="timed frames of --substeps each, one after the other (each printed, mean reported)")
     args = parser.parse_args()
@@ -299,6 +339,11 @@ def main() -> None:
     import warp as wp
 
     name = wp.get_device(device).name if device.startswith("cuda") else "cpu"
+    if device.startswith("cuda"):
+        from pixie_gs.sim.p2g_column import vector_atomics_active
+
+        name += f", kernels for sm_{wp.get_device(device).get_cuda_compile_arch()}, 16-byte vector atomics " + \
+            ("on" if vector_atomics_active(device) else "off")
     print(f"device {device} ({name}); elastic block E={E_PA:g} Pa nu={NU} rho={RHO:g} kg/m3, "
           f"{PARTICLES_PER_CELL} particles/cell; warm-up {args.warmup}, timed {substeps} substeps")
     base = time_numpy(args.baseline_particles, args.baseline_substeps)
@@ -307,28 +352,47 @@ def main() -> None:
           f"({base['substeps']} substeps in {base['seconds']:.2f} s wall, {base['cpu_seconds']:.2f} s process CPU)")
     results = []
 
-    def label(r: dict) -> str:
-        return f"P2G {r['p2g']}" + (f" re-sort/{r['sort_substeps']}" if r["sort_substeps"] else "") + \
+    def details(r: dict) -> str:
+        """What the row ran, after "P2G <kind>"."""
+        col = r["column"]
+        column = "" if r["p2g"] not in ("column", "slab") else \
+            f" run {col.get('column_run', 32)}" + (" scalar atomics" if col.get("vector_atomics") is False else "") + \
+            (" carry" if col.get("carry_affine") else "") + \
+            (f" blocks of {col['p2g_block_dim']}" if col.get("p2g_block_dim") else "")
+        return column + (f" re-sort/{r['sort_substeps']}" if r["sort_substeps"] else "") + \
             (" array sort inside" if r["resort"] == "inside" else "") + \
-            (f" G2P {r['g2p_registers']} regs" if r["g2p_registers"] else "")
+            (f" G2P {r['g2p_registers']} regs" if r["g2p_registers"] else "") + \
+            (f" P2G {col['p2g_max_registers']} regs" if col.get("p2g_max_registers") else "")
+
+    def is_baseline(r: dict) -> bool:  # the chunked P2G as it was the GPU default: no options
+        return r["order"] == "sorted" and r["requested"] == "chunked" and r["plain"]
+
+    def role(r: dict) -> str:
+        return "default (auto) " if r["requested"] == "auto" else \
+            "baseline (chunked, the previous GPU default) " if is_baseline(r) else ""
+
+    def label(r: dict) -> str:
+        return f"{role(r)}P2G {r['p2g']}{details(r)}"
 
     for n in args.sizes:
-        runs = [(o, k, s, r, None) for o in args.order for k in args.p2g for s in args.sort_substeps for r in args.resort
-                if not (args.variant and o == "sorted")]
+        runs = [(o, k, s, r, None, {}) for o in args.order for k in args.p2g for s in args.sort_substeps
+                for r in args.resort if not (args.variant and o == "sorted")
+                and not (o != "sorted" and k in ("column", "slab"))]  # the column P2Gs need sorting
         runs += [("sorted", *parse_variant(v)) for v in args.variant if "sorted" in args.order]
-        for order, p2g, k_sort, resort, g2p_registers in runs:
-            resorts = order == "sorted" and (p2g == "chunked" or (p2g == "auto" and device != "cpu"))
+        for order, p2g, k_sort, resort, g2p_registers, column in runs:
+            resorts = order == "sorted" and (p2g in ("chunked", "column", "slab")
+                                             or (p2g == "auto" and device != "cpu"))
             if (k_sort != args.sort_substeps[0] or resort != args.resort[0]) and not resorts and g2p_registers is None:
                 continue  # no in-frame re-sort to vary
             r = time_warp(n, device, args.warmup, substeps, order, p2g, k_sort or None, args.frames, resort,
-                          g2p_registers)
+                          g2p_registers, column)
             results.append(r)
             cpu_rate = f" [{r['n'] * r['substeps'] / r['cpu_seconds'] / 1e6:.3f} M per process-CPU s]" \
                 if device == "cpu" and r["cpu_seconds"] > 0 else ""
-            extra = label(r)[4 + len(r["p2g"]):]
             frames = "" if len(r["frame_rates"]) < 2 else \
                 " (frames: " + " / ".join(f"{x / 1e6:.4g}" for x in r["frame_rates"]) + ", mean)"
-            print(f"warp {device:<6} {r['n']:>9} particles {order:<7} P2G {r['p2g']:<7}{extra} "
+            print(f"warp {device:<6} {r['n']:>9} particles {order:<7} {role(r)}P2G {r['p2g']:<7}"
+                  f"{details(r)} "
                   f"{r['rate'] / 1e6:10.3f} M particle-substeps/s{frames}"
                   f"{cpu_rate} ({r['substeps']} substeps in one step_frame, {r['seconds']:.3f} s wall, "
                   f"{r['cpu_seconds']:.2f} s process CPU, dt {r['dt']:.2e} s)  "
@@ -351,12 +415,20 @@ def main() -> None:
         if len(rows) >= 2:
             a, b = rows[0], rows[-1]
             print(f"scaling {a['n']} -> {b['n']} particles ({order}): throughput ratio {b['rate'] / a['rate']:.2f}")
-    for n in sorted({r["n"] for r in results}):  # variants against the solver's default, same run
+    for n in sorted({r["n"] for r in results}):  # variants against the baseline, same run, same frames
         same = [r for r in results if r["n"] == n and r["order"] == "sorted"]
-        base_rows = [r for r in same if r["p2g"] == same[0]["p2g"] and r["sort_substeps"] == same[0]["sort_substeps"]]
-        for r in same[1:] if base_rows else []:
-            print(f"variant vs baseline ({n} particles, sorted): {label(r)} {r['rate'] / 1e6:.4g} M / "
-                  f"{label(same[0])} {same[0]['rate'] / 1e6:.4g} M = {r['rate'] / same[0]['rate']:.3f}")
+        if len(same) < 2:
+            continue
+        ref = next((r for r in same if is_baseline(r)), same[0])  # the chunked P2G, else the first row
+        for r in same:
+            if r is not ref:
+                print(f"variant vs baseline ({n} particles, sorted): {label(r)} {r['rate'] / 1e6:.4g} M / "
+                      f"{label(ref)} {ref['rate'] / 1e6:.4g} M = {r['rate'] / ref['rate']:.3f}")
+        default = next((r for r in same if r["requested"] == "auto"), None)
+        if default is not None and default is not ref and is_baseline(ref) and device.startswith("cuda"):
+            print(f"new default vs baseline ({n} particles, sorted, mean of {len(default['frame_rates'])} frames): "
+                  f"{label(default)} {default['rate'] / 1e6:.4g} M / chunked {ref['rate'] / 1e6:.4g} M = "
+                  f"{default['rate'] / ref['rate']:.3f}")
     if device.startswith("cuda"):
         for r in results:
             if r["order"] != "lattice" and r["n"] >= 900_000:

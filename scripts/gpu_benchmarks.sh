@@ -1,12 +1,17 @@
 #!/usr/bin/env bash
 # The GPU side of issues 14 and 16 on one lent GPU box, in parts that each fit one device call:
-#   tests     the physics, simulator and feature-field tests on CUDA           (~2 min)
-#   sim       MPM throughput at 1M and 4M particles, random input order, the default and the
-#             opt-in variants on the same frames (ratios against the default) (~2 min)
+#   tests     the physics, simulator (column P2G included) and feature-field tests on CUDA (~3-4 min)
+#   simtests  the same without the feature-field tests (every CUDA sim test)   (~3 min)
+#   sim       MPM throughput at 1M and 4M particles, random input sorted by the solver, 3 frames: the
+#             default (column P2G carrying affine matrices, blocks of 128) against the chunked P2G,
+#             the previous default, on the same frames                          (~1 min)
 #   diagnose  the 20k-Gaussian, 2-second diagnose runtime case (target <= 5 s)  (~1 min)
 #   batch     the model process alone, then 1,000 assets of 100k Gaussians in batch mode (>= 10/s)  (~5 min)
+#   p2g       the column P2G's CUDA tests, then the default and the column/slab variants against the
+#             chunked P2G on the same frames at 1M and 4M particles (issue 14)   (~4 min)
 # usage, from the repo root, Warp on PYTHONPATH for tests/sim/diagnose (batch needs none):
-#   OUT=/tmp/gpu scripts/gpu_benchmarks.sh tests sim diagnose   # one call
+#   OUT=/tmp/gpu scripts/gpu_benchmarks.sh simtests sim         # one call (~4 min)
+#   OUT=/tmp/gpu scripts/gpu_benchmarks.sh diagnose             # another
 #   OUT=/tmp/gpu scripts/gpu_benchmarks.sh batch                # a second call
 # Full logs go to $OUT/<part>.txt; the terminal gets the figures that decide each target.
 set -u -o pipefail
@@ -19,18 +24,29 @@ if ! python3 -c "import plyfile, trimesh, tqdm" 2>/dev/null && ls .whl/*.whl >/d
   export PYTHONPATH=/tmp/pixie_site:${PYTHONPATH:-}
 fi
 export PYTHONPATH=$PWD:${PYTHONPATH:-}
+SIM_TESTS="tests/test_sim_kernels.py tests/test_sim_p2g_column.py tests/test_sim_physics.py tests/test_sim_state.py
+  tests/test_sim_batched.py tests/test_sim_rigid.py"
+cuda_tests() {  # log name, time limit (s), test files: failures and the summary to the terminal
+  local log=$OUT/$1.txt limit=$2
+  shift 2
+  PIXIE_TEST_DEVICES=cuda timeout "$limit" python3 -m pytest -q -p no:cacheprovider "$@" >"$log" 2>&1
+  grep -E "^(FAILED|ERROR)" "$log" | cut -c1-300
+  tail -3 "$log"
+}
 run_part() {
   case $1 in
     tests)
-      PIXIE_TEST_DEVICES=cuda timeout 240 python3 -m pytest -q -p no:cacheprovider tests/test_sim_kernels.py \
-        tests/test_sim_physics.py tests/test_sim_state.py tests/test_sim_batched.py tests/test_sim_rigid.py \
-        tests/test_field_device.py >"$OUT/tests.txt" 2>&1
-      tail -3 "$OUT/tests.txt" ;;
+      # shellcheck disable=SC2086
+      cuda_tests tests 270 $SIM_TESTS tests/test_field_device.py ;;
+    simtests)
+      # shellcheck disable=SC2086
+      cuda_tests simtests 240 $SIM_TESTS ;;
     sim)
-      timeout 240 python3 benchmarks/bench_sim_throughput.py --device cuda --sizes 1000000 4000000 \
-        --order random sorted --frames 3 --variant auto --variant chunked,inside --variant chunked,g2p=64 \
-        --variant chunked,inside,g2p=64 >"$OUT/sim.txt" 2>&1
-      grep -E "^warp|issue 14|vs baseline" "$OUT/sim.txt" | cut -c1-170 ;;
+      timeout 150 python3 benchmarks/bench_sim_throughput.py --device cuda --sizes 1000000 4000000 \
+        --order sorted --frames 3 --variant chunked --variant auto >"$OUT/sim.txt" 2>&1
+      grep -E "^device" "$OUT/sim.txt" | cut -c1-160
+      grep -E "^warp|per substep|vs baseline|issue 14" "$OUT/sim.txt" | sed -E 's/ \(kernels alone.*//; s/\[.*//' \
+        | cut -c1-230 ;;
     diagnose)
       timeout 150 python3 benchmarks/bench_diagnose.py --part runtime --device cuda >"$OUT/diagnose.txt" 2>&1
       grep -E "diagnosis incl|named:" "$OUT/diagnose.txt" ;;
@@ -41,7 +57,18 @@ run_part() {
       timeout 330 python3 benchmarks/bench_batch_annotate.py --count 1000 --gaussians 100000 --device cuda \
         --pools process --workers 12 --model-threads 3 --loop-files 3 --budget-s 230 >"$OUT/batch.txt" 2>&1
       tr '\r' '\n' <"$OUT/batch.txt" | grep -E "assets/s|CPU time|byte-identical|threads \(most" | tail -10 ;;
-    *) echo "unknown part $1 (tests, sim, diagnose, batch)"; return 2 ;;
+    p2g)
+      PIXIE_TEST_DEVICES=cuda timeout 110 python3 -m pytest -q -p no:cacheprovider tests/test_sim_p2g_column.py \
+        tests/test_sim_kernels.py >"$OUT/p2g_tests.txt" 2>&1
+      grep -E "^(FAILED|ERROR)" "$OUT/p2g_tests.txt" | cut -c1-300
+      tail -3 "$OUT/p2g_tests.txt"
+      timeout 125 python3 benchmarks/bench_sim_throughput.py --device cuda --sizes 1000000 4000000 --order sorted \
+        --frames 3 --variant chunked --variant auto --variant column,carry --variant column --variant column,novec \
+        --variant column,carry,run=64 --variant slab,carry >"$OUT/p2g_sim.txt" 2>&1
+      grep -E "^device" "$OUT/p2g_sim.txt" | cut -c1-160
+      grep -E "^warp|per substep|vs baseline|issue 14" "$OUT/p2g_sim.txt" | sed -E 's/ \(kernels alone.*//; s/\[.*//' \
+        | cut -c1-190 ;;
+    *) echo "unknown part $1 (tests, simtests, sim, diagnose, batch, p2g)"; return 2 ;;
   esac
 }
 for part in "$@"; do

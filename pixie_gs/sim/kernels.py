@@ -150,23 +150,17 @@ def p2g_chunked(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.ar
         add_stencil_sums(acc, current, grid_mass, grid_momentum)
 
 
-@wp.kernel
-def grid_update(grid_mass: wp.array3d(dtype=float), grid_momentum: wp.array3d(dtype=wp.vec3),
-                grid_fixed: wp.array3d(dtype=float), grid_velocity: wp.array3d(dtype=wp.vec3),
-                grid: GridInfo, box_lo: wp.vec3i, dt: float, time_s: float, gravity: wp.vec3,
-                wind_acc: wp.array(dtype=wp.vec3), wind_lo: wp.array(dtype=wp.vec3),
-                wind_hi: wp.array(dtype=wp.vec3), wind_timing: wp.array(dtype=wp.vec4), n_wind: int,
-                damping: float, air_drag: float, ground_enabled: int, ground_height: float,
-                friction: float, sticky_walls: int, boundary: int):
-    a, b, c = wp.tid()
-    i = a + box_lo[0]
-    j = b + box_lo[1]
-    k = c + box_lo[2]
-    m = grid_mass[i, j, k]
-    held = grid_fixed[i, j, k]
+@wp.func
+def node_velocity(m: float, momentum: wp.vec3, held: float, i: int, j: int, k: int, grid: GridInfo, dt: float,
+                  time_s: float, gravity: wp.vec3, wind_acc: wp.array(dtype=wp.vec3), wind_lo: wp.array(dtype=wp.vec3),
+                  wind_hi: wp.array(dtype=wp.vec3), wind_timing: wp.array(dtype=wp.vec4), n_wind: int,
+                  damping: float, air_drag: float, ground_enabled: int, ground_height: float,
+                  friction: float, sticky_walls: int, boundary: int) -> wp.vec3:
+    """Velocity (m/s) of grid node (i, j, k) after one substep from its summed mass (kg) and
+    momentum (kg·m/s): forces, damping, drag, ground and walls; 0 where empty or held (`held` > 0)."""
     vel = wp.vec3(0.0)
     if m > 0.0 and held <= 0.0:
-        vel = grid_momentum[i, j, k] / m
+        vel = momentum / m
         node = grid.origin + wp.vec3(float(i), float(j), float(k)) * grid.dx
         acc = gravity
         for w in range(n_wind):
@@ -200,7 +194,29 @@ def grid_update(grid_mass: wp.array3d(dtype=float), grid_momentum: wp.array3d(dt
                     vel = wp.vec3(0.0)
                 elif (low and vel[d] < 0.0) or (high and vel[d] > 0.0):
                     vel[d] = 0.0
-    grid_velocity[i, j, k] = vel
+    return vel
+
+
+@wp.kernel
+def grid_update(grid_mass: wp.array3d(dtype=float), grid_momentum: wp.array3d(dtype=wp.vec3),
+                grid_fixed: wp.array3d(dtype=float), grid_velocity: wp.array3d(dtype=wp.vec3),
+                grid: GridInfo, box_lo: wp.vec3i, dt: float, time_s: float, gravity: wp.vec3,
+                wind_acc: wp.array(dtype=wp.vec3), wind_lo: wp.array(dtype=wp.vec3),
+                wind_hi: wp.array(dtype=wp.vec3), wind_timing: wp.array(dtype=wp.vec4), n_wind: int,
+                damping: float, air_drag: float, ground_enabled: int, ground_height: float,
+                friction: float, sticky_walls: int, boundary: int):
+    a, b, c = wp.tid()
+    i = a + box_lo[0]
+    j = b + box_lo[1]
+    k = c + box_lo[2]
+    m = grid_mass[i, j, k]
+    held = grid_fixed[i, j, k]
+    momentum = wp.vec3(0.0)
+    if m > 0.0 and held <= 0.0:  # empty and held nodes: no momentum read
+        momentum = grid_momentum[i, j, k]
+    grid_velocity[i, j, k] = node_velocity(m, momentum, held, i, j, k, grid, dt, time_s, gravity, wind_acc, wind_lo,
+                                           wind_hi, wind_timing, n_wind, damping, air_drag, ground_enabled,
+                                           ground_height, friction, sticky_walls, boundary)
     grid_mass[i, j, k] = 0.0
     grid_momentum[i, j, k] = wp.vec3(0.0)
     grid_fixed[i, j, k] = 0.0

@@ -26,7 +26,7 @@ from ..devices import resolve_warp_device  # noqa: E402
 from ..errors import ComputationError, InputError
 from ..materials import MATERIAL_NAMES, METAL, SNOW, STATIONARY, VISCOPLASTIC
 from ..progress import stage
-from . import kernels
+from . import kernels, p2g_column
 from .constitutive import NO_YIELD
 from .particles import Particles
 from .reduce import FrameStats, StatsReducer, reference_stats
@@ -36,8 +36,17 @@ from .sort import cell_order, cell_runs, chunk_runs, permute_in_place
 from .state import ARRAY_FIELDS, State
 
 CHUNK = 8  # particles per P2G thread while the particles are in no cell order (sort_every = 0)
-SORT_SUBSTEPS = 4  # with sorting on, the chunked P2G's cell order is refreshed every this many substeps
+SORT_SUBSTEPS = 4  # with sorting on, the run-based P2Gs' cell order is refreshed every this many substeps
 RESORT_SUBSTEP = 16  # resort_inside: the frame's array re-sort goes in at the first index sort from this substep
+COLUMN_RUN = 32  # p2g="column"/"slab": particles per run at most (a run is one column of cells along z)
+# P2G kernels; the column ones (sim/p2g_column.py): kernel, its carry twin, threads per run
+COLUMN_KINDS = {"column": (p2g_column.p2g_column, p2g_column.p2g_column_carry, p2g_column.COLUMN_THREADS),
+                "slab": (p2g_column.p2g_slab, p2g_column.p2g_slab_carry, p2g_column.SLAB_THREADS)}
+P2G_KINDS = ("auto", "chunked", "atomic", *COLUMN_KINDS)
+# p2g="auto" on a GPU with sorting on: the fastest measured configuration (H100, docs/benchmarks.md
+# issue 14: 1.23x / 1.43x the chunked P2G at 1M / 4M particles): the column P2G, affine matrices
+# carried from G2P, P2G blocks of 128 threads (96 registers per thread: 20 resident warps per SM)
+GPU_P2G, GPU_CARRY_AFFINE, GPU_P2G_BLOCK_DIM = "column", True, 128
 SORT_MIN_PARTICLES = 50_000  # on a GPU, smaller runs fit in cache and are launch-bound: no sorting
 
 FAR = 1.0e30  # "unbounded" for regions and time windows passed to kernels
@@ -54,6 +63,29 @@ def lame_parameters(E_pa: np.ndarray, nu: np.ndarray) -> tuple[np.ndarray, np.nd
     """(μ, λ) in Pa from Young's modulus and Poisson ratio."""
     E, nu = np.asarray(E_pa, dtype=np.float64), np.asarray(nu, dtype=np.float64)
     return E / (2.0 * (1.0 + nu)), E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+
+
+def p2g_choice(p2g: str, device: str, sort_every: int, carry_affine: bool | None = None,
+               block_dim: int | None = None) -> tuple[str, bool, int | None]:
+    """(P2G kind, carry_affine, P2G block size or None for Warp's 256) that MPMSolver runs for its
+    options `p2g`, `carry_affine`, `p2g_block_dim` on `device` with `sort_every`: "auto" is GPU_P2G
+    with GPU_CARRY_AFFINE and GPU_P2G_BLOCK_DIM (each unless given) on a GPU that sorts, else
+    "atomic"; a kind named is run with the options given (None: off, 256). ValueError for
+    choices that cannot run."""
+    if p2g not in P2G_KINDS:
+        raise ValueError(f"p2g must be one of {', '.join(P2G_KINDS)}, got {p2g!r}")
+    if p2g in COLUMN_KINDS and sort_every == 0:
+        raise ValueError(f"p2g={p2g!r} needs the particles in cell order (sort_every > 0)")
+    auto_gpu = p2g == "auto" and device != "cpu" and sort_every > 0
+    if p2g == "auto":
+        p2g = GPU_P2G if auto_gpu else "atomic"
+    if carry_affine is None:
+        carry_affine = GPU_CARRY_AFFINE and auto_gpu
+    if carry_affine and p2g not in COLUMN_KINDS:
+        raise ValueError(f"carry_affine needs p2g 'column' or 'slab', got {p2g!r}")
+    if block_dim is None and auto_gpu:
+        block_dim = GPU_P2G_BLOCK_DIM
+    return p2g, bool(carry_affine), None if block_dim is None else int(block_dim)
 
 
 def held_particles(particles: Particles, scene: Scene) -> np.ndarray:
@@ -94,9 +126,10 @@ class MPMSolver:
     after each kernel launch: benchmarks time kernels with it).
     The scene is read once, at construction; build a new solver to change it.
     `sort_every`: re-sort the particle arrays into cell order every this many frames (0: keep
-    the caller's order, never sort; None: every frame, except on a GPU below SORT_MIN_PARTICLES); inside a frame the chunked P2G gets a fresh cell order (an
-    index, the arrays stay put) every `sort_substeps` substeps (None: SORT_SUBSTEPS). Sorted and
-    unsorted runs agree to float rounding. `resort_inside`: with the chunked P2G, a frame's
+    the caller's order, never sort; None: every frame, except on a GPU below SORT_MIN_PARTICLES);
+    inside a frame the chunked and column P2Gs get a fresh cell order (an index, the arrays stay
+    put) every `sort_substeps` substeps (None: SORT_SUBSTEPS). Sorted and unsorted runs agree to
+    float rounding. `resort_inside`: with the chunked or column P2G, a frame's
     re-sort of the arrays replaces its first in-frame index sort from substep RESORT_SUBSTEP on,
     instead of running at the frame start, where the device waits while the host issues it.
     `g2p_max_registers`: compile G2P with at most this many registers per CUDA thread
@@ -104,13 +137,29 @@ class MPMSolver:
     The Warp arrays (x, v, F, ...) are in slot order; use the accessors for the caller's order.
     `p2g`: "chunked" (one thread per run of same-cell particles sums them before touching the
     grid, kernels.p2g_chunked), "atomic" (one global atomic per particle and node, kernels.p2g, the
-    plain reference) or "auto" (chunked on a GPU when sorting, else atomic; on the CPU atomic
-    measured faster).
+    plain reference), "column" (nine threads per run of up to `column_run` particles of one column
+    of cells, each sliding a 3-node window along z, into a packed vec4 grid: sim/p2g_column.py;
+    needs sorting), "slab" (the same with three threads per run, 3×3-node windows) or "auto":
+    on a GPU when sorting, GPU_P2G (column) with carry_affine and p2g_block_dim GPU_P2G_BLOCK_DIM
+    (128) unless those are given; else (the CPU, where atomic measured fastest, or a GPU without
+    sorting) atomic. The chosen values are in p2g_kind, carry_affine, p2g_block_dim.
+    `vector_atomics` (column, slab): a node's momentum and mass go out as one 16-byte
+    atomic on sm_90+ (False: four scalar atomics). `p2g_max_registers`: compile the P2G kernel
+    with at most this many registers per CUDA thread (None: the compiler's choice).
+    `carry_affine` (column, slab): inside a frame each G2P but the last stores the next P2G's
+    affine matrix (p2g_column.g2p_carry) in place of C and τ, which the last one stores as usual;
+    never while rigid bodies are present (they overwrite C and τ after G2P: `carrying` says
+    whether frames carry now). None: on where "auto" chose the column P2G, else off.
+    `p2g_block_dim`: CUDA threads per block of the P2G launch (None: GPU_P2G_BLOCK_DIM where "auto"
+    chose the column P2G, else Warp's 256; at 96 registers per thread, blocks of 128 let 20 warps
+    per SM stay resident instead of 16).
     """
 
     def __init__(self, particles: Particles, scene: Scene, device: str = "cpu", sort_every: int | None = None,
                  p2g: str = "auto", sort_substeps: int | None = None, resort_inside: bool = False,
-                 g2p_max_registers: int | None = None) -> None:
+                 g2p_max_registers: int | None = None, column_run: int | None = None, vector_atomics: bool = True,
+                 p2g_max_registers: int | None = None, carry_affine: bool | None = None,
+                 p2g_block_dim: int | None = None) -> None:
         particles.validate()
         self.scene = scene
         self.device = resolve_warp_device(device)
@@ -128,16 +177,22 @@ class MPMSolver:
         if sort_every is None:
             sort_every = 1 if self.device == "cpu" or self.n >= SORT_MIN_PARTICLES else 0
         self.sort_every = int(sort_every)
-        if p2g not in ("auto", "chunked", "atomic"):
-            raise ValueError(f"p2g must be 'auto', 'chunked' or 'atomic', got {p2g!r}")
-        if p2g == "auto":
-            p2g = "chunked" if self.device != "cpu" and self.sort_every > 0 else "atomic"
+        p2g, carry_affine, p2g_block_dim = p2g_choice(p2g, self.device, self.sort_every, carry_affine, p2g_block_dim)
         self.p2g_kind = p2g
         self.sort_substeps = SORT_SUBSTEPS if sort_substeps is None else int(sort_substeps)
         if self.sort_substeps < 1:
             raise ValueError(f"sort_substeps must be >= 1, got {sort_substeps!r}")
         self.resort_inside = bool(resort_inside)
         self.g2p_max_registers = g2p_max_registers
+        self.p2g_max_registers = p2g_max_registers
+        self.column_run = COLUMN_RUN if column_run is None else int(column_run)
+        if self.column_run < 1:
+            raise ValueError(f"column_run must be >= 1, got {column_run!r}")
+        self.vector_atomics = bool(vector_atomics)
+        self.carry_affine = carry_affine
+        self.p2g_block_dim = p2g_block_dim
+        self._packed = p2g in COLUMN_KINDS  # grid_mv (momentum xyz, mass per node) instead of two arrays
+        self._runs_p2g = p2g == "chunked" or self._packed  # P2G threads take runs from the cell sort
         self.timing: dict[str, float] = {}
         self.kernel_timer = None
         self._impulse_done = [False] * len(scene.impulses)
@@ -174,6 +229,7 @@ class MPMSolver:
         self.order = wp.array(np.arange(self.n, dtype=np.int32), dtype=wp.int32, device=d)  # slot → index
         self.run_start = wp.zeros(self.n + 1, dtype=wp.int32, device=d)  # P2G thread t: run_start[t] ≤ p < [t+1]
         self.run_count = wp.zeros(1, dtype=wp.int32, device=d)  # runs in run_start (stays on the device)
+        self.run_key = wp.zeros(self.n if self._packed else 1, dtype=wp.int32, device=d)  # column: first cell per run
         chunk_runs(self.n, CHUNK, self.run_start, self.run_count)
         self._identity = wp.array(np.arange(self.n, dtype=np.int32), dtype=wp.int32, device=d)
         self._p2g_index = self._identity  # P2G reads particle index[i] for run position i
@@ -181,7 +237,9 @@ class MPMSolver:
         self._reducer = StatsReducer(d)
 
         self.grid_mass = wp.zeros(self.dims, dtype=float, device=d)
-        self.grid_momentum = wp.zeros(self.dims, dtype=wp.vec3, device=d)
+        # packed: P2G sums into grid_mv; grid_mass only takes the node masses for rigid coupling
+        self.grid_momentum = None if self._packed else wp.zeros(self.dims, dtype=wp.vec3, device=d)
+        self.grid_mv = wp.zeros(self.dims, dtype=wp.vec4, device=d) if self._packed else None
         self.grid_fixed = wp.zeros(self.dims, dtype=float, device=d)
         self.grid_velocity = wp.zeros(self.dims, dtype=wp.vec3, device=d)
 
@@ -237,7 +295,9 @@ class MPMSolver:
 
     def _bind_state(self) -> None:
         """Point the recorded P2G and G2P launches at self.state's arrays."""
-        for launch in (self._p2g, self._g2p):
+        for launch in (self._p2g, self._p2g_carry, self._g2p, self._g2p_carry):
+            if launch is None:
+                continue
             takes = {arg.label for arg in launch.kernel.adj.args}
             for name in ARRAY_FIELDS:
                 if name in takes:
@@ -323,20 +383,29 @@ class MPMSolver:
         perm, keys = cell_order(self.x, self.grid_info)
         permute_in_place(perm, self._particle_arrays())
         self._order_host = None
-        cell_runs(keys, self.run_start, self.run_count)
+        self._cell_runs(keys)
         self._set_p2g_index(self._identity)
 
     def _reindex(self) -> None:
-        """A fresh cell order for the chunked P2G only: sort an index, not the arrays (cheap, all
+        """A fresh cell order for the run-based P2Gs only: sort an index, not the arrays (cheap, all
         on the device: done every sort_substeps substeps as particles drift between cells)."""
         perm, keys = cell_order(self.x, self.grid_info)
-        cell_runs(keys, self.run_start, self.run_count)
+        self._cell_runs(keys)
         self._set_p2g_index(perm)
+
+    def _cell_runs(self, keys: wp.array) -> None:
+        """The P2G runs of cell-sorted `keys`: one cell each, or (column) one column of cells."""
+        if self._packed:
+            cell_runs(keys, self.run_start, self.run_count, self.column_run, column=self.dims[2],
+                      run_keys=self.run_key)
+        else:
+            cell_runs(keys, self.run_start, self.run_count)
 
     def _set_p2g_index(self, index: wp.array) -> None:
         self._p2g_index = index
-        if self.p2g_kind == "chunked":
-            self._p2g.set_param_by_name("index", index)
+        for launch in (self._p2g, self._p2g_carry) if self._runs_p2g else ():
+            if launch is not None:
+                launch.set_param_by_name("index", index)
 
     @property
     def n_runs(self) -> int:
@@ -461,21 +530,20 @@ class MPMSolver:
         t_stats = clock()
         dt = frame_dt_s / n_sub
         t0 = self.time_s
-        self.grid_mass.zero_()
-        self.grid_momentum.zero_()
-        self.grid_fixed.zero_()
+        self._clear_grid()
         for s in range(n_sub):
             if s == resort_at:  # the frame's full re-sort, issued while the device is busy
                 self._resort()
                 if self.kernel_timer is not None:
                     self.kernel_timer.mark("resort")
-            elif self.sort_every > 0 and self.p2g_kind == "chunked" and s > 0 and s % self.sort_substeps == 0:
+            elif self.sort_every > 0 and self._runs_p2g and s > 0 and s % self.sort_substeps == 0:
                 self._reindex()  # all on the device: the launches queue behind the substeps
                 if self.kernel_timer is not None:
                     self.kernel_timer.mark("sort")
             t = t0 + s * dt
             self._apply_impulses(t + dt)
-            self._substep(dt, t)
+            carry = self.carrying
+            self._substep(dt, t, carry_in=carry and s > 0, carry_out=carry and s < n_sub - 1)
         t_launched = clock()
         self.time_s = t0 + frame_dt_s
         self.state.time_s = self.time_s
@@ -486,12 +554,18 @@ class MPMSolver:
         self.timing = {"sort_s": t_sorted - t_start, "stats_s": t_stats - t_sorted,
                        "launch_s": t_launched - t_stats, "guard_s": clock() - t_launched}
 
+    @property
+    def carrying(self) -> bool:
+        """Whether a frame carries the affine matrices from G2P to P2G now: carry_affine, and no
+        rigid bodies (they overwrite C and τ after G2P, so the next P2G must compute its own)."""
+        return self.carry_affine and self.rigid is None
+
     def _inside_resort_substep(self, n_sub: int) -> int:
         """Substep before which `resort_inside` re-sorts the arrays: the first in-frame index sort
         at or after RESORT_SUBSTEP (by then the host, issuing launches faster than the device runs
         them, is far enough ahead that issuing the ~40 launches of a re-sort leaves the device no
         gap); -1: at the frame start (no in-frame index sorts, or too few substeps)."""
-        if self.p2g_kind != "chunked":
+        if not self._runs_p2g:
             return -1
         at = -(-RESORT_SUBSTEP // self.sort_substeps) * self.sort_substeps
         return at if at < n_sub else -1
@@ -527,29 +601,60 @@ class MPMSolver:
         particle_inputs = [self.x, self.v, self.C, self.stress, self.volume, self.mass, self.fixed_flag,
                            self.grid_info, 0.0]
         grid_outputs = [self.grid_mass, self.grid_momentum, self.grid_fixed]
-        if self.p2g_kind == "chunked":
-            self._p2g = wp.launch(kernels.p2g_chunked, dim=self.n, device=d, record_cmd=True,
+        capped = lambda k: kernels.register_capped(k, self.p2g_max_registers)  # noqa: E731
+        self._p2g_carry = None  # carry_affine: the P2G that reads the affine matrices G2P left
+        if self._packed:
+            kernel, kernel_carry, per_run = COLUMN_KINDS[self.p2g_kind]
+            runs = [self.run_start, self.run_count, self.run_key, self._p2g_index, int(self.vector_atomics),
+                    self.grid_mv, self.grid_fixed]
+            threads = p2g_column.column_threads(self.n, self.column_run, self.dims, per_run)
+            block = {} if self.p2g_block_dim is None else {"block_dim": int(self.p2g_block_dim)}
+            self._p2g = wp.launch(capped(kernel), device=d, record_cmd=True, dim=threads,
+                                  inputs=particle_inputs + runs, **block)
+            if self.carry_affine:
+                self._p2g_carry = wp.launch(capped(kernel_carry), device=d, record_cmd=True, dim=threads,
+                                            inputs=particle_inputs + runs, **block)
+        elif self.p2g_kind == "chunked":
+            self._p2g = wp.launch(capped(kernels.p2g_chunked), dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + [self.run_start, self.run_count, self._p2g_index]
                                   + grid_outputs)
         else:
-            self._p2g = wp.launch(kernels.p2g, dim=self.n, device=d, record_cmd=True,
+            self._p2g = wp.launch(capped(kernels.p2g), dim=self.n, device=d, record_cmd=True,
                                   inputs=particle_inputs + grid_outputs)
+        grid_in = [self.grid_mv, self.grid_fixed] if self._packed else grid_outputs
         self._grid = wp.launch(
-            kernels.grid_update, dim=self.dims, device=d, record_cmd=True,
-            inputs=[self.grid_mass, self.grid_momentum, self.grid_fixed, self.grid_velocity, self.grid_info,
-                    wp.vec3i(0, 0, 0), 0.0, 0.0, wp.vec3(*sc.gravity), self.wind_acc, self.wind_lo, self.wind_hi,
-                    self.wind_timing, len(sc.wind), sc.damping, sc.air_drag, int(sc.ground.enabled),
-                    sc.ground.height_m, sc.ground.friction, int(sc.walls == "sticky"), BOUNDARY_CELLS])
+            p2g_column.grid_update_packed if self._packed else kernels.grid_update, dim=self.dims, device=d,
+            record_cmd=True,
+            inputs=grid_in + [self.grid_velocity, self.grid_info,
+                              wp.vec3i(0, 0, 0), 0.0, 0.0, wp.vec3(*sc.gravity), self.wind_acc, self.wind_lo,
+                              self.wind_hi, self.wind_timing, len(sc.wind), sc.damping, sc.air_drag,
+                              int(sc.ground.enabled), sc.ground.height_m, sc.ground.friction,
+                              int(sc.walls == "sticky"), BOUNDARY_CELLS])
         self._g2p = wp.launch(
             kernels.register_capped(kernels.g2p, self.g2p_max_registers), dim=self.n, device=d, record_cmd=True,
             inputs=[self.x, self.v, self.C, self.F, self.mu, self.lam, self.yield_stress, self.material,
                     self.Jp, self.fixed_flag, self.grid_info, self.material_params, 0.0, self.grid_velocity,
                     self.stress])
+        self._g2p_carry = None if not self.carry_affine else wp.launch(
+            kernels.register_capped(p2g_column.g2p_carry, self.g2p_max_registers), dim=self.n, device=d,
+            record_cmd=True,
+            inputs=[self.x, self.v, self.C, self.F, self.mu, self.lam, self.yield_stress, self.material,
+                    self.Jp, self.fixed_flag, self.grid_info, self.material_params, 0.0, self.grid_velocity,
+                    self.stress, self.volume, self.mass])
 
-    def _substep(self, dt: float, t: float) -> None:
+    def _clear_grid(self) -> None:
+        """Zero the P2G sums (the grid update clears them after each substep)."""
+        for a in (self.grid_mass, self.grid_momentum, self.grid_mv, self.grid_fixed):
+            if a is not None:
+                a.zero_()
+
+    def _substep(self, dt: float, t: float, carry_in: bool = False, carry_out: bool = False) -> None:
+        """One substep of dt s at time t. carry_in: the P2G reads the affine matrices the last G2P
+        left in `stress` (carry_affine); carry_out: this G2P leaves them for the next substep."""
         timer = self.kernel_timer
-        self._p2g.set_param_by_name("dt", dt)
-        self._p2g.launch()
+        p2g = self._p2g_carry if carry_in else self._p2g
+        p2g.set_param_by_name("dt", dt)
+        p2g.launch()
         if timer is not None:
             timer.mark("p2g")
         box_lo, box_shape = self._active_box()
@@ -558,6 +663,9 @@ class MPMSolver:
         self._grid.set_param_by_name("dt", dt)
         self._grid.set_param_by_name("time_s", t)
         if self.rigid is not None:  # nodes the bodies cover, impulses, node masses (sim/rigid.py)
+            if self._packed:
+                wp.launch(p2g_column.packed_mass, dim=self.dims, device=self.device,
+                          inputs=[self.grid_mv, self.grid_mass])
             self.rigid.before_grid(self.x, self.v, self.order, self.grid_info, self.grid_mass, self.grid_fixed,
                                    self._rigid_walls[0][2], dt)
         self._grid.launch()
@@ -565,8 +673,9 @@ class MPMSolver:
             timer.mark("grid")
         if self.rigid is not None:  # momentum in from the grid, one rigid step (sim/rigid.py)
             self.rigid.advance(self.grid_info, self.grid_velocity, box_lo, box_shape, *self._rigid_walls, dt)
-        self._g2p.set_param_by_name("dt", dt)
-        self._g2p.launch()
+        g2p = self._g2p_carry if carry_out else self._g2p
+        g2p.set_param_by_name("dt", dt)
+        g2p.launch()
         if self.rigid is not None:  # velocity out: rigid particles take their body's motion
             self.rigid.place(self.x, self.v, self.C, self.F, self.stress, self.order)
         if timer is not None:

@@ -39,12 +39,18 @@ def gather(src: wp.array(dtype=Any), perm: wp.array(dtype=wp.int32), dst: wp.arr
 
 
 @wp.kernel
-def run_heads(keys: wp.array(dtype=wp.int32), max_run: int, head: wp.array(dtype=wp.int32)):
-    """head[i] = 1 where a run starts: a new cell key, or every max_run-th particle (long runs
-    are split so no thread gets a crowded cell alone)."""
+def run_heads(keys: wp.array(dtype=wp.int32), max_run: int, column: int, head: wp.array(dtype=wp.int32)):
+    """head[i] = 1 where a run starts: a new cell key (`column` > 0: a new key // column, i.e. a
+    new column of cells along z when column = grid.dims[2]), or every max_run-th particle (long
+    runs are split so no thread gets a crowded cell alone)."""
     i = wp.tid()
     head[i] = 0
-    if i == 0 or keys[i] != keys[i - 1] or i % max_run == 0:
+    if i == 0 or i % max_run == 0:
+        head[i] = 1
+    elif column > 0:
+        if keys[i] // column != keys[i - 1] // column:
+            head[i] = 1
+    elif keys[i] != keys[i - 1]:
         head[i] = 1
 
 
@@ -61,6 +67,15 @@ def scatter_run_starts(head: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.i
         runs = slot[i] + head[i]
         count[0] = runs
         starts[runs] = n
+
+
+@wp.kernel
+def scatter_run_keys(head: wp.array(dtype=wp.int32), slot: wp.array(dtype=wp.int32), keys: wp.array(dtype=wp.int32),
+                     run_keys: wp.array(dtype=wp.int32)):
+    """run_keys[slot[i]] = keys[i] for every run head i: the cell key of each run's first particle."""
+    i = wp.tid()
+    if head[i] != 0:
+        run_keys[slot[i]] = keys[i]
 
 
 @wp.kernel
@@ -93,16 +108,21 @@ def cell_order(x: wp.array, grid: GridInfo) -> tuple[wp.array, wp.array]:
 MAX_RUN = 64  # particles; a longer same-cell run is split
 
 
-def cell_runs(sorted_keys: wp.array, starts: wp.array, count: wp.array, max_run: int = MAX_RUN) -> None:
+def cell_runs(sorted_keys: wp.array, starts: wp.array, count: wp.array, max_run: int = MAX_RUN, column: int = 0,
+              run_keys: wp.array | None = None) -> None:
     """Write into `starts` (capacity ≥ N+1) where each run of equal keys begins, followed by N,
-    and the number of runs into count[0] — all on the device (nothing is read back)."""
+    and the number of runs into count[0] — all on the device (nothing is read back).
+    `column` > 0: runs of equal key // column instead (whole columns of cells along z when
+    column = grid.dims[2]); `run_keys` (capacity ≥ N): the key of each run's first particle."""
     n = sorted_keys.shape[0]
     d = sorted_keys.device
     head = wp.empty(n, dtype=wp.int32, device=d)
     slot = wp.empty(n, dtype=wp.int32, device=d)
-    wp.launch(run_heads, dim=n, device=d, inputs=[sorted_keys, max_run, head])
+    wp.launch(run_heads, dim=n, device=d, inputs=[sorted_keys, max_run, column, head])
     wp.utils.array_scan(head, slot, inclusive=False)
     wp.launch(scatter_run_starts, dim=n, device=d, inputs=[head, slot, starts, count])
+    if run_keys is not None:
+        wp.launch(scatter_run_keys, dim=n, device=d, inputs=[head, slot, sorted_keys, run_keys])
 
 
 def chunk_runs(n: int, chunk: int, starts: wp.array, count: wp.array) -> None:
