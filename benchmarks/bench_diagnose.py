@@ -190,11 +190,37 @@ def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values
           f"{ {k: round(v, 3) for k, v in named.params.items()} if named else ''}; gap "
           f"{summary['gap_before']:.4f} → {summary['gap_after']:.4f} "
           f"({100 * summary['gap_reduction']:.1f}% smaller)")
+    timeline(d.sim_log, start, fitted)
     if d.rounds and d.rounds[0].ranking:
         top = d.rounds[0].ranking[:4]
         print("  round-1 ranking: " + "; ".join(
             f"{s.label} {({k: round(v, 3) for k, v in s.params.items()})} ΔBIC {s.delta_bic:.0f}" for s in top)
               + (f"; ambiguous with: {', '.join(a.label for a in d.ambiguous)}" if d.ambiguous else ""))
+
+
+def timeline(log: list, start: float, fitted: float) -> None:
+    """Every simulation of the diagnosis in order (stage, when, how long, how big), the host time
+    between simulations, and the totals per stage."""
+    print("  simulations (stage, start s, seconds, runs, particles, grid, frames; host s since the previous one; "
+          "batched: set-up s, frame loop s, of it waiting in syncs s, substeps):")
+    last = start
+    per_stage: dict = defaultdict(lambda: [0, 0, 0.0, 0.0])
+    for rec in log:
+        gap = rec.start_s - last
+        st = rec.stats
+        split = (f"   set-up {st['setup_s']:.3f} loop {st['loop_s']:.3f} wait {st['wait_s']:.3f} "
+                 f"substeps {st['substeps']}") if st else ""
+        print(f"    {rec.stage:10s} {rec.start_s - start:6.2f} {rec.seconds:6.3f} {rec.runs:3d} {rec.particles:7d} "
+              f"{rec.grid:3d} {rec.frames:3d}   host {gap:6.3f}{split}")
+        last = rec.start_s + rec.seconds
+        acc = per_stage[rec.stage.split()[0]]
+        acc[0] += 1
+        acc[1] += rec.runs
+        acc[2] += rec.seconds
+        acc[3] += gap
+    print(f"    host after the last simulation until the fit returned: {fitted - last:.3f} s")
+    print("  per stage: " + "; ".join(f"{k} {v[0]} sims / {v[1]} runs {v[2]:.2f} s (+{v[3]:.2f} s host before)"
+                                      for k, v in per_stage.items()))
 
 
 def batch_speed(device: str, n: int, seconds: float, fps: float, sizes: tuple[int, ...] = (1, 8, 32)) -> None:

@@ -62,13 +62,14 @@ def noise_sigma(r: np.ndarray, visible: np.ndarray) -> float:
 
 
 def spatial_clusters(rest_positions: np.ndarray, k: int = 4, seed: int = 0) -> np.ndarray:
-    """k-means labels (M,) of the tracked points' rest positions (deterministic for `seed`)."""
-    from scipy.cluster.vq import kmeans2
+    """k-means labels (M,) of the tracked points' rest positions (deterministic for `seed`;
+    SciPy's kmeans2 with k-means++ seeds, without importing scipy: kmeans.py)."""
+    from ..kmeans import kmeans_pp
 
     k = int(max(1, min(k, len(rest_positions))))
     if k == 1:
         return np.zeros(len(rest_positions), np.int64)
-    _, labels = kmeans2(np.asarray(rest_positions, np.float64), k, seed=seed, minit="++")
+    _, labels = kmeans_pp(np.asarray(rest_positions, np.float64), k, seed=seed)
     return labels.astype(np.int64)
 
 

@@ -22,7 +22,7 @@ from ..splat import SplatCloud
 from .locate import per_frame_rms, residuals, rms_gap, spatial_clusters
 from .measured import MeasuredTracks
 from .ambiguity import separation_hint
-from .pipeline import FIT_MODULES, Diagnosis
+from .pipeline import Diagnosis
 
 
 def bake_material_overrides(scene, cloud: SplatCloud) -> tuple[object, SplatCloud]:
@@ -163,7 +163,7 @@ def details(diagnosis: Diagnosis) -> dict:
     return {"rounds": [{"round": r.index, "baseline_rms": r.baseline_rms,
                         "location": r.location.summary(t),
                         "chosen": None if r.chosen is None else r.chosen.to_dict(),
-                        "ranking": [s.to_dict() for s in r.ranking]} for r in diagnosis.rounds],
+                        "ranking": [s.to_dict() for s in r.ranking], "note": r.note} for r in diagnosis.rounds],
             "parts_from_materials": diagnosis.parts_from_materials}
 
 
@@ -225,10 +225,10 @@ PLOT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg")
 def prefetch_plotting() -> None:
     """Start importing what plot_gap needs in the background (prefetch.py): a caller that will
     write the PNG after a diagnosis calls this before it, so the import overlaps the simulations
-    (queued after the fit's modules, which the diagnosis needs sooner)."""
+    (the fit itself imports nothing heavy: no scipy, lsq.py and kmeans.py)."""
     from ..prefetch import prefetch
 
-    prefetch(*FIT_MODULES, *PLOT_MODULES)
+    prefetch(*PLOT_MODULES)
 
 
 def record(path: Path, diagnosis: Diagnosis, after: np.ndarray) -> None:

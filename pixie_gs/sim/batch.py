@@ -17,6 +17,7 @@ Runs must share the grid (domain origin, cell size, node counts), walls, constit
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -161,6 +162,8 @@ class BatchedSolver:
         self._uploaded: dict[int, np.ndarray] = {}  # last values sent per device array
         self._x_host: np.ndarray | None = None       # positions fetched at the end of frame _x_frame
         self._x_frame = -1
+        self.substeps_total = 0                      # substep launches so far (all runs together)
+        self.wait_s = 0.0                            # GPU: host time spent waiting in end-of-frame syncs
         self._record_launches()
         self.graph = None
         if d != "cpu" and (CUDA_GRAPH if graph is None else graph):
@@ -287,7 +290,9 @@ class BatchedSolver:
         bufs = [self._host_mirror(a) for a in arrays]
         for buf, a in zip(bufs, arrays):
             wp.copy(buf, a)
+        start = time.perf_counter()
         wp.synchronize_device(self.device)
+        self.wait_s += time.perf_counter() - start
         return [buf.numpy() for buf in bufs]
 
     # ------------------------------------------------------------------ stepping
@@ -367,6 +372,7 @@ class BatchedSolver:
         for s in range(int(n_sub.max(initial=0))):
             self._apply_impulses(s, t0, n_sub, dts)
             self._launch_substep(s, alive_slots)
+        self.substeps_total += int(n_sub.max(initial=0))
         self.time_s = t0 + frame_dt_s
         self.state.time_s = self.time_s
         self.frame += 1
@@ -477,14 +483,17 @@ class BatchedSolver:
 
 def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: float, device: str = "auto",
                    fill: bool = False, quiet: bool = True, graph: bool | None = None,
-                   points: np.ndarray | None = None) -> list:
+                   points: np.ndarray | None = None, stats: dict | None = None) -> list:
     """`sim.run.simulate` for several (cloud, scene) models at once, on one shared grid shape:
     one Trajectory per model, or the ComputationError that stopped that model's run (the others
     still finish). Raises InputError for unusable input (as simulate does). `points`: indices of
     the Gaussians to return (Trajectory.x is then (T, len(points), 3)): diagnose needs only the
     tracked ones, and mapping every Gaussian back to input coordinates each frame costs more
-    host time than a batched GPU frame."""
+    host time than a batched GPU frame. `stats` (optional) receives where the time went: set-up
+    (particles and solver) and frame-loop seconds, substeps launched, seconds waited in syncs."""
     from .run import Trajectory, build_particles, simulate
+
+    start = time.perf_counter()
 
     if frames < 1:
         raise InputError(f"frames must be ≥ 1, got {frames}")
@@ -501,6 +510,7 @@ def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: flo
     xs = [np.empty((frames, len(k), 3), np.float32) for k in pick]
     slots = np.concatenate([int(solver.offsets[r]) + k for r, k in enumerate(pick)])
     ends = np.cumsum([len(k) for k in pick])
+    loop_start = time.perf_counter()
     steps = range(1, frames) if quiet else progress(range(1, frames), desc=f"simulate ×{len(models)}",
                                                     total=frames - 1, unit="frame")
     # per frame only a copy of the picked world positions (the GPU idles while the host works
@@ -513,6 +523,9 @@ def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: flo
                 xs[r][i] = x_pick[ends[r] - len(pick[r]):ends[r]]
         if not solver.alive.any():
             break
+    if stats is not None:
+        stats.update(setup_s=loop_start - start, loop_s=time.perf_counter() - loop_start,
+                     substeps=solver.substeps_total, wait_s=solver.wait_s, frames=solver.frame)
     out: list = []
     for r, (_, tf) in enumerate(built):
         err = solver.errors[r]
