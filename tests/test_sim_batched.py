@@ -226,6 +226,7 @@ def test_cuda_graph_replay_equals_plain_launches(device):
     replayed = BatchedSolver(runs, device, graph=True)
     launched = BatchedSolver(runs, device, graph=False)
     assert replayed.graph is not None and launched.graph is None
+    assert replayed.graph_unrolled is not None  # frames 2-4 (no impulse pending) replay it: ≥ 11 substeps each
     for _ in range(4):
         replayed.step_frame(1.0 / 25)
         launched.step_frame(1.0 / 25)
@@ -264,3 +265,37 @@ def test_close_rivals_on_the_reduced_model_are_settled_on_the_full_model(monkeyp
     assert sses["air_drag"] == min(sses.values()) and d.effect.sse == pytest.approx(sses["air_drag"], rel=1e-3)
     assert d.rounds[0].ranking[0].effect == "air_drag"
     assert d.gap_after <= 0.2 * d.gap_before
+
+
+def test_substep_plan_of_all_runs_equals_the_per_run_rule():
+    """BatchedSolver._plan (every run at once, numpy) gives _substeps' count for each run (the
+    per-run reference): random speeds and snow waves, pending impulses, a run over the budget."""
+    from pixie_gs.materials import SNOW
+
+    snow = block(E=3e4, material_id=SNOW)
+    runs = varied_runs() + [(snow, scene_with()), (block(E=5e10), scene_with())]
+    batch = BatchedSolver(runs, "cpu")
+    rng = np.random.default_rng(3)
+    for trial in range(40):
+        if trial == 20:
+            batch.step_frame(1.0 / 25)  # the t = 0 impulses are spent; one run's impulse still pending
+        maxima = np.stack([rng.uniform(0.0, 30.0, len(runs)), rng.uniform(0.0, 400.0, len(runs))], axis=1)
+        maxima[rng.random(len(runs)) < 0.2] = 0.0
+        frame_dt = float(rng.choice([1 / 25, 1 / 30, 1 / 60, 0.1]))
+        planned = batch._plan(frame_dt, maxima)
+        alive = batch.alive
+        rule = [batch._substeps(r, frame_dt, float(maxima[r, 0]), float(maxima[r, 1])) if alive[r] else 0
+                for r in range(len(runs))]
+        assert planned.tolist() == rule
+    assert 0 in rule and max(rule) > 1  # the over-budget run, and runs needing several substeps
+
+
+def test_grids_are_clear_after_every_frame(device):
+    """step_frame does not clear the grids: each grid launch clears the nodes it read, which must
+    be every node P2G touched (runs with fewer substeps, a stopped run, the CPU's active box)."""
+    runs = varied_runs()[:6]
+    batch = BatchedSolver(runs, device)
+    for _ in range(3):
+        batch.step_frame(1.0 / 25)
+        for grid in (batch.grid_mass, batch.grid_momentum, batch.grid_fixed):
+            assert not np.any(grid.numpy())

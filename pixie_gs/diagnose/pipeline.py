@@ -266,7 +266,18 @@ class _Runner:
 
 def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "auto",
              options: DiagnoseOptions | None = None, cache: dict | None = None) -> Diagnosis:
-    """Find, fit and add the effects the model (cloud + scene) is missing versus `tracks`."""
+    """Find, fit and add the effects the model (cloud + scene) is missing versus `tracks`.
+
+    numpy's BLAS runs on one thread meanwhile (batch/worker_env.blas_threads): the fit's matrix
+    work is a few columns at a time, and a pool sized to every core only spins between calls."""
+    from ..batch.worker_env import blas_threads
+
+    with blas_threads(1):
+        return _diagnose(cloud, scene, tracks, device, options, cache)
+
+
+def _diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str, options: DiagnoseOptions | None,
+              cache: dict | None) -> Diagnosis:
     options = options or DiagnoseOptions()
     effects = list(registry().values()) if not options.effects else [get_effect(n) for n in options.effects]
     if not effects:
