@@ -214,7 +214,9 @@ def plot_gap(path: Path, diagnosis: Diagnosis, after: np.ndarray, regions: list[
         why = "not converged: the gap is solver error,\nno effect was fitted" if not diagnosis.converged \
             else "no candidate effect was fitted"
         ax.text(0.5, 0.5, why, ha="center", va="center", transform=ax.transAxes, fontsize=10)
-    fig.tight_layout()
+    # fixed margins (room for rotated region names and effect labels such as "plastic_yield[part 12]"):
+    # tight_layout would draw the figure once more only to measure them (~40 % of the PNG's time)
+    fig.subplots_adjust(left=0.045, right=0.99, bottom=0.2, top=0.92, wspace=0.42)
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=110, format="png")  # Agg, chosen by the format
 
