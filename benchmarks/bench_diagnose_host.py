@@ -8,9 +8,8 @@ measured in the same run:
     loop (checks.outlier_distances_reference);
   * the Gaussian spacing (nearest neighbour of each of 20k centres): numpy cell grid (knn.py) vs
     scipy's cKDTree, the latter with the import of scipy.spatial it needs (fresh interpreter);
-  * the imports the fit and the PNG need (scipy.optimize + scipy.cluster.vq; matplotlib.figure vs
-    matplotlib.pyplot), each in a fresh interpreter: what the background prefetch (prefetch.py)
-    takes off the main thread.
+  * the imports the fit and the PNG need (scipy.optimize + scipy.cluster.vq before, pixie_gs.lsq +
+    pixie_gs.kmeans now; matplotlib.figure vs matplotlib.pyplot), each in a fresh interpreter.
 Prints wall and process-CPU seconds (fresh interpreters: less numpy's own import) and the load
 average (a shared machine: compare CPU seconds).
 """
@@ -44,7 +43,8 @@ def fresh(code: str) -> tuple[float, float]:
     """(wall s, CPU s) of `code` in a fresh interpreter (imports not yet loaded)."""
     prog = ("import time; w = time.perf_counter(); c = time.process_time()\n" + code +
             "\nprint(time.perf_counter() - w, time.process_time() - c)")
-    out = subprocess.run([sys.executable, "-c", prog], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-c", prog], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parent.parent)  # this checkout's pixie_gs
     wall, cpu = (float(v) for v in out.stdout.split()[-2:])
     return wall, cpu
 
@@ -78,14 +78,16 @@ def main() -> None:
     print(f"  Gaussian spacing: numpy cell grid {w_grid:.3f} s wall / {c_grid:.3f} s CPU (spacing {s_grid:.5f}); "
           f"cKDTree incl. importing scipy.spatial {w_kd - w_np:.3f} s / {c_kd - c_np:.3f} s CPU")
 
-    for label, code in (("scipy.optimize + scipy.cluster.vq (fit)", "import scipy.optimize, scipy.cluster.vq"),
+    for label, code in (("scipy.optimize + scipy.cluster.vq (the fit, before)", "import scipy.optimize, scipy.cluster.vq"),
+                        ("pixie_gs.lsq + pixie_gs.kmeans (the fit, now)", "import pixie_gs.lsq, pixie_gs.kmeans"),
                         ("matplotlib.figure + backend_agg (PNG, now)",
                          "import matplotlib.figure, matplotlib.backends.backend_agg"),
                         ("matplotlib.pyplot, Agg (PNG, before)",
                          "import matplotlib\nmatplotlib.use('Agg')\nimport matplotlib.pyplot")):
         w, c = fresh("import numpy\n" + code)
         print(f"  import {label}: {w - w_np:.3f} s wall / {c - c_np:.3f} s CPU")
-    print("  (the imports now run in a background thread while the first simulations run: prefetch.py)")
+    print("  (the PNG's imports run in a background thread while the first simulations run: prefetch.py;"
+          " the fit imports no scipy)")
 
 
 if __name__ == "__main__":

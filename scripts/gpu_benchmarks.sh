@@ -3,7 +3,10 @@
 #   tests     the physics, simulator and feature-field tests on CUDA           (~2 min)
 #   sim       MPM throughput at 1M and 4M particles, random input order, the default and the
 #             opt-in variants on the same frames (ratios against the default) (~2 min)
-#   diagnose  the 20k-Gaussian, 2-second diagnose runtime case (target <= 5 s)  (~1 min)
+#   diagnose  the 20k-Gaussian, 2-second diagnose runtime case (target <= 5 s), twice in one
+#             process, with its timeline of simulations                         (~1 min)
+#   diagnose-ab  the batched-solver tests on CUDA, then the runtime case once with single-substep
+#             graphs and the output imports timed, then once under cProfile     (~1.5 min)
 #   batch     the model process alone, then 1,000 assets of 100k Gaussians in batch mode (>= 10/s)  (~5 min)
 # usage, from the repo root, Warp on PYTHONPATH for tests/sim/diagnose (batch needs none):
 #   OUT=/tmp/gpu scripts/gpu_benchmarks.sh tests sim diagnose   # one call
@@ -13,9 +16,9 @@ set -u -o pipefail
 OUT=${OUT:?set OUT to the output folder}
 mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1
-# what the box lacks (plyfile, trimesh, tqdm) comes from wheels in the ignored .whl folder, if carried
-if ! python3 -c "import plyfile, trimesh, tqdm" 2>/dev/null && ls .whl/*.whl >/dev/null 2>&1; then
-  python3 -m pip install -q --no-index --no-deps --target /tmp/pixie_site .whl/*.whl >"$OUT/wheels.txt" 2>&1
+# what the box lacks (plyfile, trimesh, tqdm) comes from wheels in an ignored .whl* folder, if carried
+if ! python3 -c "import plyfile, trimesh, tqdm" 2>/dev/null && ls .whl*/*.whl >/dev/null 2>&1; then
+  python3 -m pip install -q --no-index --no-deps --target /tmp/pixie_site .whl*/*.whl >"$OUT/wheels.txt" 2>&1
   export PYTHONPATH=/tmp/pixie_site:${PYTHONPATH:-}
 fi
 export PYTHONPATH=$PWD:${PYTHONPATH:-}
@@ -32,8 +35,19 @@ run_part() {
         --variant chunked,inside,g2p=64 >"$OUT/sim.txt" 2>&1
       grep -E "^warp|issue 14|vs baseline" "$OUT/sim.txt" | cut -c1-170 ;;
     diagnose)
-      timeout 150 python3 benchmarks/bench_diagnose.py --part runtime --device cuda >"$OUT/diagnose.txt" 2>&1
-      grep -E "diagnosis incl|named:" "$OUT/diagnose.txt" ;;
+      timeout 150 python3 benchmarks/bench_diagnose.py --part runtime --device cuda --repeat 2 \
+        >"$OUT/diagnose.txt" 2>&1
+      grep -E "imports for|diagnosis incl|named:|per stage" "$OUT/diagnose.txt" | cut -c1-400 ;;
+    diagnose-ab)
+      PIXIE_TEST_DEVICES=cuda timeout 75 python3 -m pytest -q -p no:cacheprovider tests/test_sim_batched.py \
+        >"$OUT/diagnose_tests.txt" 2>&1
+      tail -2 "$OUT/diagnose_tests.txt"
+      timeout 40 python3 benchmarks/bench_diagnose.py --part runtime --device cuda --graph-substeps 1 \
+        --imports timed >"$OUT/diagnose_ab.txt" 2>&1
+      grep -E "runtime:|diagnosis incl|named:" "$OUT/diagnose_ab.txt" | cut -c1-300
+      timeout 45 python3 benchmarks/bench_diagnose.py --part runtime --device cuda --profile 45 \
+        >"$OUT/diagnose_profile.txt" 2>&1
+      grep -E "diagnosis incl|named:" "$OUT/diagnose_profile.txt" | cut -c1-300 ;;
     batch)
       timeout 90 python3 benchmarks/bench_model_step.py --count 24 --device cuda --threads 1,2,3 \
         >"$OUT/model_step.txt" 2>&1
@@ -41,7 +55,7 @@ run_part() {
       timeout 330 python3 benchmarks/bench_batch_annotate.py --count 1000 --gaussians 100000 --device cuda \
         --pools process --workers 12 --model-threads 3 --loop-files 3 --budget-s 230 >"$OUT/batch.txt" 2>&1
       tr '\r' '\n' <"$OUT/batch.txt" | grep -E "assets/s|CPU time|byte-identical|threads \(most" | tail -10 ;;
-    *) echo "unknown part $1 (tests, sim, diagnose, batch)"; return 2 ;;
+    *) echo "unknown part $1 (tests, sim, diagnose, diagnose-ab, batch)"; return 2 ;;
   esac
 }
 for part in "$@"; do
