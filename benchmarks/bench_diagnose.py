@@ -229,9 +229,10 @@ def diagnose_once(device: str, cloud, scene, arrays: dict, one_sim: float, batch
 
 def graphs(device: str) -> str:
     batch_module = sys.modules["pixie_gs.sim.batch"]
+    loop = ", frames on the device" if batch_module.DEVICE_LOOP else ""
     if device == "cpu" or not batch_module.CUDA_GRAPH:
-        return ""
-    return f", CUDA graphs of 1 and {batch_module.GRAPH_SUBSTEPS} substeps"
+        return loop
+    return f", CUDA graphs of 1 and {batch_module.GRAPH_SUBSTEPS} substeps{loop}"
 
 
 def timeline(log: list, start: float, fitted: float) -> None:
@@ -308,6 +309,9 @@ def main() -> None:
                     help="runtime part: import the outputs' modules (matplotlib, rerun) during the warm-up "
                          "(default, printed apart) or inside the timed part")
     ap.add_argument("--repeat", type=int, default=1, help="runtime part: timed diagnoses in this process")
+    ap.add_argument("--device-loop", choices=("on", "off"), default=None,
+                    help="batched frames planned, stepped and guarded on the device with one read-back at the "
+                         "end (sim/device_frames.py; default sim/batch.py DEVICE_LOOP)")
     ap.add_argument("--graph-substeps", type=int, default=None, metavar="N",
                     help="GPU: substeps per replayed CUDA graph besides the single-substep one "
                          "(default sim/batch.py GRAPH_SUBSTEPS; 1: single-substep graphs only)")
@@ -319,6 +323,10 @@ def main() -> None:
         import pixie_gs.sim.batch as batch_module
 
         batch_module.CUDA_GRAPH = args.graph == "on"
+    if args.device_loop is not None:
+        import pixie_gs.sim.batch as batch_module
+
+        batch_module.DEVICE_LOOP = args.device_loop == "on"
     if args.graph_substeps is not None:
         import pixie_gs.sim.batch as batch_module
 

@@ -5,8 +5,9 @@
 #             opt-in variants on the same frames (ratios against the default) (~2 min)
 #   diagnose  the 20k-Gaussian, 2-second diagnose runtime case (target <= 5 s), twice in one
 #             process, with its timeline of simulations                         (~1 min)
-#   diagnose-ab  the batched-solver tests on CUDA, then the runtime case once with single-substep
-#             graphs and the output imports timed, then once under cProfile     (~1.5 min)
+#   diagnose-ab  the batched-solver tests on CUDA, then the runtime case once with its frames on the
+#             device (conditional graphs), once with single-substep graphs and the output imports
+#             timed (A/B against `diagnose`; `--profile 45` gives a cProfile)   (~1 min)
 #   batch     the model process alone, then 1,000 assets of 100k Gaussians in batch mode (>= 10/s)  (~5 min)
 # usage, from the repo root, Warp on PYTHONPATH for tests/sim/diagnose (batch needs none):
 #   OUT=/tmp/gpu scripts/gpu_benchmarks.sh tests sim diagnose   # one call
@@ -35,19 +36,19 @@ run_part() {
         --variant chunked,inside,g2p=64 >"$OUT/sim.txt" 2>&1
       grep -E "^warp|issue 14|vs baseline" "$OUT/sim.txt" | cut -c1-170 ;;
     diagnose)
-      timeout 150 python3 benchmarks/bench_diagnose.py --part runtime --device cuda --repeat 2 \
+      timeout 110 python3 benchmarks/bench_diagnose.py --part runtime --device cuda --repeat 2 \
         >"$OUT/diagnose.txt" 2>&1
       grep -E "imports for|diagnosis incl|named:|per stage" "$OUT/diagnose.txt" | cut -c1-400 ;;
     diagnose-ab)
-      PIXIE_TEST_DEVICES=cuda timeout 75 python3 -m pytest -q -p no:cacheprovider tests/test_sim_batched.py \
+      PIXIE_TEST_DEVICES=cuda timeout 50 python3 -m pytest -q -p no:cacheprovider tests/test_sim_batched.py \
         >"$OUT/diagnose_tests.txt" 2>&1
       tail -2 "$OUT/diagnose_tests.txt"
-      timeout 40 python3 benchmarks/bench_diagnose.py --part runtime --device cuda --graph-substeps 1 \
+      timeout 25 python3 benchmarks/bench_diagnose.py --part runtime --device cuda --device-loop on \
+        >"$OUT/diagnose_loop.txt" 2>&1
+      grep -E "runtime:|diagnosis incl|named:|per stage" "$OUT/diagnose_loop.txt" | cut -c1-400
+      timeout 25 python3 benchmarks/bench_diagnose.py --part runtime --device cuda --graph-substeps 1 \
         --imports timed >"$OUT/diagnose_ab.txt" 2>&1
-      grep -E "runtime:|diagnosis incl|named:" "$OUT/diagnose_ab.txt" | cut -c1-300
-      timeout 45 python3 benchmarks/bench_diagnose.py --part runtime --device cuda --profile 45 \
-        >"$OUT/diagnose_profile.txt" 2>&1
-      grep -E "diagnosis incl|named:" "$OUT/diagnose_profile.txt" | cut -c1-300 ;;
+      grep -E "runtime:|diagnosis incl|named:" "$OUT/diagnose_ab.txt" | cut -c1-300 ;;
     batch)
       timeout 90 python3 benchmarks/bench_model_step.py --count 24 --device cuda --threads 1,2,3 \
         >"$OUT/model_step.txt" 2>&1

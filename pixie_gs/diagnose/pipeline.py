@@ -376,38 +376,32 @@ def prepare_tracks(tracks: MeasuredTracks, cloud: SplatCloud, scene, device: str
     """Registration and sanity before physics (checks.py): units, rigid registration at t₀, match
     distances; then, from ONE simulation of the model as given, the start-time offset and the
     outlier tracks → (checked tracks, what was found, their baseline prediction for the cache).
-    The simulation is appended to `log`."""
-    import time
+    The simulation is appended to `log`.
 
-    from ..progress import is_quiet, set_quiet
-    from ..sim.run import simulate
+    The geometry checks (host work: nearest neighbours, ICP) run on a worker thread while that
+    simulation runs — it needs only the tracked Gaussians, which the checks change only when they
+    re-match the points (units or registration applied to tracks without ids): then it runs again."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from .forward import sample_at, sim_schedule
     from .locate import noise_sigma
 
-    tracks, reg = check_geometry(tracks, cloud, options.units)
-    frames, fps = sim_schedule(tracks.t)
-    quiet = is_quiet()
-    set_quiet(True)
-    start = time.perf_counter()
-    sim_stats: dict = {}
-    try:
-        stage("checks: simulating the model as given for the start-time offset and outlier tracks")
-        if options.batch:  # the same solver path as every fitting run (sim/batch.py)
-            from ..sim.batch import simulate_batch
-
-            traj = simulate_batch([(cloud, scene)], frames + 4, fps, device=device, fill=options.fill,
-                                  points=tracks.ids, stats=sim_stats)[0]
-            if isinstance(traj, Exception):
-                raise traj
-            xs = traj.x.astype(np.float64)
-        else:
-            traj = simulate(cloud, scene, frames + 4, fps, device=device, fill=options.fill)
-            xs = traj.x[:, tracks.ids].astype(np.float64)
-    finally:
-        set_quiet(quiet)
-    if log is not None:
-        log.append(SimRecord("checks", start, time.perf_counter() - start, 1, len(cloud), int(scene.domain.grid),
-                             frames + 4, sim_stats))
+    frames, fps = sim_schedule(tracks.t)  # the checks change positions and ids, never the clock
+    if options.units not in (None, "m"):  # converted units re-match tracks without ids: checks first
+        tracks, reg = check_geometry(tracks, cloud, options.units)
+        xs = _simulate_as_given(cloud, scene, frames, fps, tracks.ids, device, options, log)
+    else:
+        with ThreadPoolExecutor(1, thread_name_prefix="pixie-checks") as pool:
+            geometry = pool.submit(check_geometry, tracks, cloud, options.units)
+            try:
+                xs = _simulate_as_given(cloud, scene, frames, fps, tracks.ids, device, options, log)
+            except BaseException:
+                geometry.result()  # an input error of the tracks comes first, as when the checks ran first
+                raise
+            checked, reg = geometry.result()
+        if not np.array_equal(checked.ids, tracks.ids):  # registered and re-matched: other Gaussians
+            xs = _simulate_as_given(cloud, scene, frames, fps, checked.ids, device, options, log)
+        tracks = checked
     delta, loss_best, loss_zero = fit_time_offset(xs, fps, tracks.x, tracks.visible, tracks.t,
                                                   max_frames=OFFSET_SEARCH_FRAMES)
     reg.time_offset_s = float(delta)
@@ -442,6 +436,39 @@ def prepare_tracks(tracks: MeasuredTracks, cloud: SplatCloud, scene, device: str
     if primed is not None and bad.any() and (~bad).sum() >= 10:
         primed = primed[:, np.nonzero(~bad)[0]]
     return tracks, reg, primed
+
+
+def _simulate_as_given(cloud: SplatCloud, scene, frames: int, fps: float, ids: np.ndarray, device: str,
+                       options: DiagnoseOptions, log: list[SimRecord] | None) -> np.ndarray:
+    """The tracked Gaussians `ids` of the model as given over frames + 4 frames → (F, M, 3) float64."""
+    import time
+
+    from ..progress import is_quiet, set_quiet
+    from ..sim.run import simulate
+
+    quiet = is_quiet()
+    set_quiet(True)
+    start = time.perf_counter()
+    sim_stats: dict = {}
+    try:
+        stage("checks: simulating the model as given for the start-time offset and outlier tracks")
+        if options.batch:  # the same solver path as every fitting run (sim/batch.py)
+            from ..sim.batch import simulate_batch
+
+            traj = simulate_batch([(cloud, scene)], frames + 4, fps, device=device, fill=options.fill,
+                                  points=ids, stats=sim_stats)[0]
+            if isinstance(traj, Exception):
+                raise traj
+            xs = traj.x.astype(np.float64)
+        else:
+            traj = simulate(cloud, scene, frames + 4, fps, device=device, fill=options.fill)
+            xs = traj.x[:, ids].astype(np.float64)
+    finally:
+        set_quiet(quiet)
+    if log is not None:
+        log.append(SimRecord("checks", start, time.perf_counter() - start, 1, len(cloud), int(scene.domain.grid),
+                             frames + 4, sim_stats))
+    return xs
 
 
 def _settle_on_full_model(runner: _Runner, problem: Problem, result: RoundResult, by_key: dict,

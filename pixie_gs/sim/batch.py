@@ -37,6 +37,8 @@ from .state import State
 
 CUDA_GRAPH = True  # default of BatchedSolver(graph=None): on a GPU, replay each substep as one CUDA
 # graph (four launches for one: a batch of small runs is launch-bound; tested against plain launches)
+DEVICE_LOOP = False  # default of simulate_batch(device_loop=None): frames planned, stepped and guarded on
+# the device, nothing read back until the end (device_frames.py; on a GPU where conditional graphs exist)
 GRAPH_SUBSTEPS = 4  # ... and GRAPH_SUBSTEPS substeps as one more graph: a frame of n substeps is
 # n // GRAPH_SUBSTEPS replays of that one plus n % GRAPH_SUBSTEPS of the single-substep graph
 
@@ -176,7 +178,8 @@ class BatchedSolver:
         self.graph_unrolled = None           # GRAPH_SUBSTEPS substeps
         if d != "cpu" and (CUDA_GRAPH if graph is None else graph):
             self.graph = self._capture(1)
-            self.graph_unrolled = self._capture(GRAPH_SUBSTEPS) if GRAPH_SUBSTEPS > 1 else None
+            if GRAPH_SUBSTEPS > 1:
+                self.graph_unrolled = self._capture(GRAPH_SUBSTEPS)
 
     # ------------------------------------------------------------------ set-up
     def _capture(self, substeps: int):
@@ -489,19 +492,23 @@ class BatchedSolver:
         if not bad.any():  # the usual frame: one test instead of one per run
             return
         for r, run in enumerate(self._runs):
-            counts_all = bad[r]
-            if not run.alive or not counts_all.any():
-                continue
-            ids = np.nonzero(counts_all)[0]
-            counts = counts_all[ids]
-            worst = int(ids[np.argmax(counts)])
-            names = ", ".join(f"'{MATERIAL_NAMES[int(m)]}' ({int(c)})" for m, c in zip(ids, counts))
-            self._stop(r)
-            run.error = ComputationError(
-                f"simulation diverged at frame {self.frame} (t={self.time_s:.4g} s): material "
-                f"'{MATERIAL_NAMES[worst]}' particles ({int(counts.sum())} of {run.stop - run.start}: {names}) "
-                f"reached non-finite or runaway velocity/deformation (limit {v_limits[r]:.3g} m/s, "
-                f"‖F‖ ≤ {MAX_STRETCH:g}); lower solver.cfl or check E/nu/density")
+            if run.alive and bad[r].any():
+                self._diverged(r, bad[r], self.frame, self.time_s, float(v_limits[r]))
+
+    def _diverged(self, r: int, counts_all: np.ndarray, frame: int, time_s: float, v_limit: float) -> None:
+        """Stop run r: `counts_all` of its particles per material failed the guard at the end of
+        frame `frame` (time_s), against velocity limit `v_limit` m/s."""
+        run = self._runs[r]
+        ids = np.nonzero(counts_all)[0]
+        counts = counts_all[ids]
+        worst = int(ids[np.argmax(counts)])
+        names = ", ".join(f"'{MATERIAL_NAMES[int(m)]}' ({int(c)})" for m, c in zip(ids, counts))
+        self._stop(r)
+        run.error = ComputationError(
+            f"simulation diverged at frame {frame} (t={time_s:.4g} s): material "
+            f"'{MATERIAL_NAMES[worst]}' particles ({int(counts.sum())} of {run.stop - run.start}: {names}) "
+            f"reached non-finite or runaway velocity/deformation (limit {v_limit:.3g} m/s, "
+            f"‖F‖ ≤ {MAX_STRETCH:g}); lower solver.cfl or check E/nu/density")
 
     # ------------------------------------------------------------------ results
     def _host_positions(self) -> np.ndarray:
@@ -530,14 +537,17 @@ class BatchedSolver:
 
 def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: float, device: str = "auto",
                    fill: bool = False, quiet: bool = True, graph: bool | None = None,
-                   points: np.ndarray | None = None, stats: dict | None = None) -> list:
+                   points: np.ndarray | None = None, stats: dict | None = None,
+                   device_loop: bool | None = None) -> list:
     """`sim.run.simulate` for several (cloud, scene) models at once, on one shared grid shape:
     one Trajectory per model, or the ComputationError that stopped that model's run (the others
     still finish). Raises InputError for unusable input (as simulate does). `points`: indices of
     the Gaussians to return (Trajectory.x is then (T, len(points), 3)): diagnose needs only the
     tracked ones, and mapping every Gaussian back to input coordinates each frame costs more
     host time than a batched GPU frame. `stats` (optional) receives where the time went: set-up
-    (particles and solver) and frame-loop seconds, substeps launched, seconds waited in syncs."""
+    (particles and solver) and frame-loop seconds, substeps launched, seconds waited in syncs.
+    `device_loop`: once no impulse is pending, run the remaining frames with nothing read back
+    until the end (device_frames.py; None: DEVICE_LOOP; where the device cannot, step_frame)."""
     from .run import Trajectory, build_particles, simulate
 
     start = time.perf_counter()
@@ -563,7 +573,18 @@ def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: flo
     # per frame only ONE gather of the picked world positions (the GPU idles while the host works
     # between frames; a stopped run's rows go stale, unused: it returns its error or runs alone);
     # split per run and mapped to input coordinates once at the end
+    if device_loop is None:
+        device_loop = DEVICE_LOOP
+    if device_loop:
+        from .device_frames import device_loop_available
+
+        device_loop = device_loop_available(solver.device)
     for i in steps:
+        if device_loop and not solver._pending:
+            from .device_frames import DeviceFrames
+
+            picked[i:] = DeviceFrames(solver, 1.0 / fps, slots, frames).run(frames - i)
+            break
         solver.step_frame(1.0 / fps)
         solver.positions_at(slots, out=picked[i])
         if not solver.alive.any():
