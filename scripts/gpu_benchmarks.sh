@@ -40,13 +40,13 @@ run_part() {
         >"$OUT/diagnose.txt" 2>&1
       grep -E "imports for|diagnosis incl|named:|per stage" "$OUT/diagnose.txt" | cut -c1-400 ;;
     diagnose-ab)
-      PIXIE_TEST_DEVICES=cuda timeout 50 python3 -m pytest -q -p no:cacheprovider tests/test_sim_batched.py \
+      PIXIE_TEST_DEVICES=cuda timeout 45 python3 -m pytest -q -p no:cacheprovider tests/test_sim_batched.py \
         >"$OUT/diagnose_tests.txt" 2>&1
       tail -2 "$OUT/diagnose_tests.txt"
       timeout 25 python3 benchmarks/bench_diagnose.py --part runtime --device cuda --device-loop on \
         >"$OUT/diagnose_loop.txt" 2>&1
       grep -E "runtime:|diagnosis incl|named:|per stage" "$OUT/diagnose_loop.txt" | cut -c1-400
-      timeout 25 python3 benchmarks/bench_diagnose.py --part runtime --device cuda --graph-substeps 1 \
+      timeout 20 python3 benchmarks/bench_diagnose.py --part runtime --device cuda --graph-substeps 1 \
         --imports timed >"$OUT/diagnose_ab.txt" 2>&1
       grep -E "runtime:|diagnosis incl|named:" "$OUT/diagnose_ab.txt" | cut -c1-300 ;;
     batch)
