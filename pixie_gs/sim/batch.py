@@ -269,6 +269,8 @@ class BatchedSolver:
         return max(run.c_static, snow_wave) if run.has_snow else run.c_static
 
     def _substeps(self, r: int, frame_dt_s: float, max_speed: float, snow_wave: float) -> int:
+        """Substeps run r takes in its next frame (as MPMSolver plans them; 0: over the budget) —
+        the plain per-run reference of _plan, which step_frame uses (tested equal)."""
         run = self._runs[r]
         s = self.scene.solver
         dt = self._cfl_dt(self._wave_speed(run, snow_wave))
