@@ -231,7 +231,7 @@ def predict_linear(problem: Problem, cand: Candidate, r_flat: np.ndarray, start:
     # the same minimiser on the k×k triangle: J = QR gives ‖r − Jδ‖² = ‖r − QQᵀr‖² + ‖Qᵀr − Rδ‖²
     # (J has one row per tracked coordinate — 10⁵ or more — and k ≤ 3 columns)
     Q, R = np.linalg.qr(J)
-    delta = bounded_lstsq(R, Q.T @ r_flat, lo, hi + 1e-12)   # SciPy's lsq_linear(method="bvls"), transcribed
+    delta = bounded_lstsq(R, Q.T @ r_flat, lo, hi + 1e-12)   # exact: every active set of the k ≤ 3 bounds tried
     cand.linear_values = {p.name: from_linear_coord(p, linear_coord(p, start[p.name]) + d)
                           for p, d in zip(cand.params, delta)}
     cand.predicted_sse = float(np.sum(np.square(r_flat - J @ delta)))
