@@ -62,8 +62,9 @@ def noise_sigma(r: np.ndarray, visible: np.ndarray) -> float:
 
 
 def spatial_clusters(rest_positions: np.ndarray, k: int = 4, seed: int = 0) -> np.ndarray:
-    """k-means labels (M,) of the tracked points' rest positions (deterministic for `seed`;
-    SciPy's kmeans2 with k-means++ seeds, without importing scipy: kmeans.py)."""
+    """k-means labels (M,) of the tracked points' rest positions (k-means++ seeds, deterministic
+    for `seed`, without importing scipy: kmeans.py); fewer than k clusters when there are fewer
+    distinct positions, numbered by their centres' coordinates."""
     from ..kmeans import kmeans_pp
 
     k = int(max(1, min(k, len(rest_positions))))
