@@ -131,8 +131,23 @@ def confusion(device: str, frames: int, fps: float, n_block: int, n_shrub: int) 
           "simulations per diagnosis (simulation cache shared per object)")
 
 
+def output_imports(has_rerun: bool) -> float:
+    """Import what the outputs need (matplotlib for the PNG, rerun for the recording) → seconds.
+    Like Warp's start-up they are paid once per process (`pixie diagnose` starts them in the
+    background before its diagnosis: report.prefetch_plotting); the fit itself imports nothing
+    heavy (no scipy: lsq.py, kmeans.py)."""
+    import importlib
+
+    from pixie_gs.diagnose.report import PLOT_MODULES
+
+    start = time.perf_counter()
+    for name in PLOT_MODULES + (("rerun",) if has_rerun else ()):
+        importlib.import_module(name)
+    return time.perf_counter() - start
+
+
 def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values: dict,
-            batch: bool | None = None, profile: int = 0) -> None:
+            batch: bool | None = None, profile: int = 0, imports_timed: bool = False, repeat: int = 1) -> None:
     from pixie_gs.sim.batch import simulate_batch
     from pixie_gs.sim.run import simulate
 
@@ -144,12 +159,23 @@ def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values
     simulate(small, scene, 3, fps, device=device)  # warm-up: Warp init and kernel (compile or) load
     simulate_batch([(small, scene), (small, scene)], 3, fps, device=device)
     warm = time.perf_counter() - start
-    start, cpu_start = time.perf_counter(), time.process_time()
+    has_rerun = importlib.util.find_spec("rerun") is not None  # GPU boxes may lack rerun-sdk
+    imports = None if imports_timed else output_imports(has_rerun)
+    start = time.perf_counter()
     simulate(cloud, scene, frames, fps, device=device)
     one_sim = time.perf_counter() - start
-    one_sim_cpu = time.process_time() - cpu_start
     arrays = make_measurement(cloud, scene, frames, fps, effect, None, values, fraction=FRACTION,
                               noise_m=NOISE_M, seed=7, device=device)
+    for i in range(repeat):
+        if repeat > 1:
+            print(f"-- repeat {i + 1} of {repeat}")
+        diagnose_once(device, cloud, scene, arrays, one_sim, batch, profile, imports, warm, has_rerun,
+                      f"{n} Gaussians, {seconds:g} s at {fps:g} fps, device {device}, hidden {effect} {values}")
+
+
+def diagnose_once(device: str, cloud, scene, arrays: dict, one_sim: float, batch: bool | None, profile: int,
+                  imports: float | None, warm: float, has_rerun: bool, what: str) -> None:
+    """One timed diagnosis (+ outputs) of the runtime case, and its figures and timeline."""
     profiler = None
     if profile:
         import cProfile
@@ -162,7 +188,6 @@ def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values
     prefetch_plotting()  # as `pixie diagnose` does before a diagnosis
     d = diagnose(cloud, scene, tracks, device=device, options=DiagnoseOptions(solver_floor=False, batch=batch))
     fitted = time.perf_counter()
-    has_rerun = importlib.util.find_spec("rerun") is not None  # GPU boxes may lack rerun-sdk
     with tempfile.TemporaryDirectory() as out:
         summary = write_report(Path(out), d, cloud, device=device, rrd=has_rerun)
     total = time.perf_counter() - start
@@ -175,26 +200,64 @@ def runtime(device: str, n: int, seconds: float, fps: float, effect: str, values
         stats.sort_stats("cumulative").print_stats(profile)
         stats.sort_stats("tottime").print_stats(profile)
     named = d.effect
-    print(f"runtime: {n} Gaussians, {seconds:g} s at {fps:g} fps, device {device}, hidden {effect} {values}, "
+    print(f"runtime: {what}, "
           f"batch {'auto' if batch is None else ('on' if batch else 'off')}"
-          f"{', CUDA graphs' if device != 'cpu' and sys.modules['pixie_gs.sim.batch'].CUDA_GRAPH else ''}")
+          f"{graphs(device)}")
     print(f"  warm-up (Warp init, kernels loaded or compiled; not timed below): {warm:.1f} s")
-    print(f"  one full simulation (baseline): {one_sim:.1f} s wall ({one_sim_cpu:.1f} s CPU)")
+    if imports is not None:
+        print(f"  imports for the outputs (matplotlib{', rerun' if has_rerun else ''}; not timed below, "
+              f"--imports timed keeps them in): {imports:.2f} s")
+    print(f"  one full simulation (baseline): {one_sim:.1f} s wall")
     print(f"  diagnosis incl. outputs: {total:.1f} s wall ({cpu:.1f} s CPU of this process) = "
           f"{total / one_sim:.1f} × one simulation (wall); "
           f"{d.runs} model runs ({d.sim_batches} batched simulations of several runs each), "
           f"{d.sim_seconds:.1f} s in the simulator; fitting {fitted - start:.1f} s, outputs "
           f"{total - (fitted - start):.1f} s; reduced fitting model: "
-          f"{'yes' if d.rounds and len(cloud) > DiagnoseOptions().fidelity.max_particles else 'no'}")
+          f"{'yes' if d.rounds and len(cloud) > DiagnoseOptions().fidelity.max_particles else 'no'}; "
+          f"load average {open('/proc/loadavg').read().split()[0] if Path('/proc/loadavg').exists() else '?'}")
     print(f"  named: {label(named.effect, named.part) if named else 'nothing'} "
           f"{ {k: round(v, 3) for k, v in named.params.items()} if named else ''}; gap "
           f"{summary['gap_before']:.4f} → {summary['gap_after']:.4f} "
           f"({100 * summary['gap_reduction']:.1f}% smaller)")
+    timeline(d.sim_log, start, fitted)
     if d.rounds and d.rounds[0].ranking:
         top = d.rounds[0].ranking[:4]
         print("  round-1 ranking: " + "; ".join(
             f"{s.label} {({k: round(v, 3) for k, v in s.params.items()})} ΔBIC {s.delta_bic:.0f}" for s in top)
               + (f"; ambiguous with: {', '.join(a.label for a in d.ambiguous)}" if d.ambiguous else ""))
+
+
+def graphs(device: str) -> str:
+    batch_module = sys.modules["pixie_gs.sim.batch"]
+    loop = ", frames on the device" if batch_module.DEVICE_LOOP else ""
+    if device == "cpu" or not batch_module.CUDA_GRAPH:
+        return loop
+    return f", CUDA graphs of 1 and {batch_module.GRAPH_SUBSTEPS} substeps{loop}"
+
+
+def timeline(log: list, start: float, fitted: float) -> None:
+    """Every simulation of the diagnosis in order (stage, when, how long, how big), the host time
+    between simulations, and the totals per stage."""
+    print("  simulations (stage, start s, seconds, runs, particles, grid, frames; host s since the previous one; "
+          "batched: set-up s, frame loop s, of it waiting in syncs s, substeps):")
+    last = start
+    per_stage: dict = defaultdict(lambda: [0, 0, 0.0, 0.0])
+    for rec in log:
+        gap = rec.start_s - last
+        st = rec.stats
+        split = (f"   set-up {st['setup_s']:.3f} loop {st['loop_s']:.3f} wait {st['wait_s']:.3f} "
+                 f"substeps {st['substeps']}") if st else ""
+        print(f"    {rec.stage:10s} {rec.start_s - start:6.2f} {rec.seconds:6.3f} {rec.runs:3d} {rec.particles:7d} "
+              f"{rec.grid:3d} {rec.frames:3d}   host {gap:6.3f}{split}")
+        last = rec.start_s + rec.seconds
+        acc = per_stage[rec.stage.split()[0]]
+        acc[0] += 1
+        acc[1] += rec.runs
+        acc[2] += rec.seconds
+        acc[3] += gap
+    print(f"    host after the last simulation until the fit returned: {fitted - last:.3f} s")
+    print("  per stage: " + "; ".join(f"{k} {v[0]} sims / {v[1]} runs {v[2]:.2f} s (+{v[3]:.2f} s host before)"
+                                      for k, v in per_stage.items()))
 
 
 def batch_speed(device: str, n: int, seconds: float, fps: float, sizes: tuple[int, ...] = (1, 8, 32)) -> None:
@@ -242,6 +305,16 @@ def main() -> None:
                     help="candidate runs as batched simulations (auto: on a GPU only)")
     ap.add_argument("--graph", choices=("on", "off"), default=None,
                     help="GPU: batched substeps replayed as one CUDA graph each (default on: sim/batch.py CUDA_GRAPH)")
+    ap.add_argument("--imports", choices=("warm", "timed"), default="warm",
+                    help="runtime part: import the outputs' modules (matplotlib, rerun) during the warm-up "
+                         "(default, printed apart) or inside the timed part")
+    ap.add_argument("--repeat", type=int, default=1, help="runtime part: timed diagnoses in this process")
+    ap.add_argument("--device-loop", choices=("on", "off"), default=None,
+                    help="batched frames planned, stepped and guarded on the device with one read-back at the "
+                         "end (sim/device_frames.py; default sim/batch.py DEVICE_LOOP)")
+    ap.add_argument("--graph-substeps", type=int, default=None, metavar="N",
+                    help="GPU: substeps per replayed CUDA graph besides the single-substep one "
+                         "(default sim/batch.py GRAPH_SUBSTEPS; 1: single-substep graphs only)")
     ap.add_argument("--profile", type=int, default=0, metavar="N",
                     help="runtime part: profile the diagnosis (cProfile) and print the top N functions")
     args = ap.parse_args()
@@ -250,11 +323,20 @@ def main() -> None:
         import pixie_gs.sim.batch as batch_module
 
         batch_module.CUDA_GRAPH = args.graph == "on"
+    if args.device_loop is not None:
+        import pixie_gs.sim.batch as batch_module
+
+        batch_module.DEVICE_LOOP = args.device_loop == "on"
+    if args.graph_substeps is not None:
+        import pixie_gs.sim.batch as batch_module
+
+        batch_module.GRAPH_SUBSTEPS = max(1, args.graph_substeps)
     if args.part in ("all", "confusion"):
         confusion(args.device, frames=17, fps=25.0, n_block=args.block, n_shrub=args.shrub)
     if args.part in ("all", "runtime"):
         runtime(args.device, args.particles, args.seconds, 30.0, "air_drag", {"k_per_m": 1.5},
-                batch={"auto": None, "on": True, "off": False}[args.batch], profile=args.profile)
+                batch={"auto": None, "on": True, "off": False}[args.batch], profile=args.profile,
+                imports_timed=args.imports == "timed", repeat=args.repeat)
     if args.part == "batch":
         batch_speed(args.device, args.particles, args.seconds, 30.0)
 

@@ -8,9 +8,8 @@ measured in the same run:
     loop (checks.outlier_distances_reference);
   * the Gaussian spacing (nearest neighbour of each of 20k centres): numpy cell grid (knn.py) vs
     scipy's cKDTree, the latter with the import of scipy.spatial it needs (fresh interpreter);
-  * the imports the fit and the PNG need (scipy.optimize + scipy.cluster.vq; matplotlib.figure vs
-    matplotlib.pyplot), each in a fresh interpreter: what the background prefetch (prefetch.py)
-    takes off the main thread.
+  * the imports the fit and the PNG need (scipy.optimize + scipy.cluster.vq before, pixie_gs.lsq +
+    pixie_gs.kmeans now; matplotlib.figure vs matplotlib.pyplot), each in a fresh interpreter.
 Prints wall and process-CPU seconds (fresh interpreters: less numpy's own import) and the load
 average (a shared machine: compare CPU seconds).
 """
@@ -44,9 +43,37 @@ def fresh(code: str) -> tuple[float, float]:
     """(wall s, CPU s) of `code` in a fresh interpreter (imports not yet loaded)."""
     prog = ("import time; w = time.perf_counter(); c = time.process_time()\n" + code +
             "\nprint(time.perf_counter() - w, time.process_time() - c)")
-    out = subprocess.run([sys.executable, "-c", prog], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-c", prog], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parent.parent)  # this checkout's pixie_gs
     wall, cpu = (float(v) for v in out.stdout.split()[-2:])
     return wall, cpu
+
+
+def plan_per_frame(cloud, runs: int = 27, frames: int = 2000) -> None:
+    """The host's per-frame substep plan of a screening batch (27 runs of the reduced model): one
+    run at a time (BatchedSolver._substeps, the reference) vs all at once (_plan)."""
+    import copy
+
+    from pixie_gs.diagnose.synthetic import toss_scene
+    from pixie_gs.sim.batch import BatchedSolver
+    from pixie_gs.sim.run import build_particles
+
+    scene = toss_scene(grid=24)
+    sub = cloud.subset(np.arange(0, len(cloud), 7))
+    models = []
+    for i in range(runs):
+        sc = copy.deepcopy(scene)
+        sc.air_drag = 0.1 * i
+        models.append((build_particles(sub, sc)[0], sc))
+    solver = BatchedSolver(models, "cpu")
+    solver.step_frame(1.0 / 30)  # the t = 0 impulse is spent
+    maxima = np.stack([np.linspace(0.5, 3.0, runs), np.zeros(runs)], axis=1)
+    rule = lambda: [solver._substeps(r, 1.0 / 30, float(maxima[r, 0]), float(maxima[r, 1])) for r in range(runs)]  # noqa: E731
+    assert solver._plan(1.0 / 30, maxima).tolist() == rule()
+    w_loop, _, _ = timed(lambda: [rule() for _ in range(frames)])
+    w_plan, _, _ = timed(lambda: [solver._plan(1.0 / 30, maxima) for _ in range(frames)])
+    print(f"  substep plan of {runs} runs per frame: per-run loop {1e6 * w_loop / frames:.0f} µs, "
+          f"all at once {1e6 * w_plan / frames:.0f} µs (same counts)")
 
 
 def main() -> None:
@@ -70,6 +97,8 @@ def main() -> None:
           f"{w_ref:.3f} s / {c_ref:.3f} s CPU → {c_ref / max(c_fast, 1e-9):.1f}× less CPU; "
           f"max |difference| {np.abs(d_fast - d_ref).max():.2g}")
 
+    plan_per_frame(cloud)
+
     w_np, c_np = fresh("import numpy")  # subtracted below: every fresh interpreter imports numpy first
     w_grid, c_grid, s_grid = timed(lambda: gaussian_spacing(means))
     np.save(Path("/tmp") / "pixie_bench_means.npy", means)
@@ -78,14 +107,16 @@ def main() -> None:
     print(f"  Gaussian spacing: numpy cell grid {w_grid:.3f} s wall / {c_grid:.3f} s CPU (spacing {s_grid:.5f}); "
           f"cKDTree incl. importing scipy.spatial {w_kd - w_np:.3f} s / {c_kd - c_np:.3f} s CPU")
 
-    for label, code in (("scipy.optimize + scipy.cluster.vq (fit)", "import scipy.optimize, scipy.cluster.vq"),
+    for label, code in (("scipy.optimize + scipy.cluster.vq (the fit, before)", "import scipy.optimize, scipy.cluster.vq"),
+                        ("pixie_gs.lsq + pixie_gs.kmeans (the fit, now)", "import pixie_gs.lsq, pixie_gs.kmeans"),
                         ("matplotlib.figure + backend_agg (PNG, now)",
                          "import matplotlib.figure, matplotlib.backends.backend_agg"),
                         ("matplotlib.pyplot, Agg (PNG, before)",
                          "import matplotlib\nmatplotlib.use('Agg')\nimport matplotlib.pyplot")):
         w, c = fresh("import numpy\n" + code)
         print(f"  import {label}: {w - w_np:.3f} s wall / {c - c_np:.3f} s CPU")
-    print("  (the imports now run in a background thread while the first simulations run: prefetch.py)")
+    print("  (the PNG's imports run in a background thread while the first simulations run: prefetch.py;"
+          " the fit imports no scipy)")
 
 
 if __name__ == "__main__":

@@ -5,7 +5,11 @@
 #   sim       MPM throughput at 1M and 4M particles, random input sorted by the solver, 3 frames: the
 #             default (column P2G carrying affine matrices, blocks of 128) against the chunked P2G,
 #             the previous default, on the same frames                          (~1 min)
-#   diagnose  the 20k-Gaussian, 2-second diagnose runtime case (target <= 5 s)  (~1 min)
+#   diagnose  the 20k-Gaussian, 2-second diagnose runtime case (target <= 5 s), twice in one
+#             process, with its timeline of simulations                         (~1 min)
+#   diagnose-ab  the batched-solver tests on CUDA, then the runtime case once with its frames on the
+#             device (conditional graphs), once with single-substep graphs and the output imports
+#             timed (A/B against `diagnose`; `--profile 45` gives a cProfile)   (~1 min)
 #   batch     the model process alone, then 1,000 assets of 100k Gaussians in batch mode (>= 10/s)  (~5 min)
 #   p2g       the column P2G's CUDA tests, then the default and the column/slab variants against the
 #             chunked P2G on the same frames at 1M and 4M particles (issue 14)   (~4 min)
@@ -18,9 +22,9 @@ set -u -o pipefail
 OUT=${OUT:?set OUT to the output folder}
 mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1
-# what the box lacks (plyfile, trimesh, tqdm) comes from wheels in the ignored .whl folder, if carried
-if ! python3 -c "import plyfile, trimesh, tqdm" 2>/dev/null && ls .whl/*.whl >/dev/null 2>&1; then
-  python3 -m pip install -q --no-index --no-deps --target /tmp/pixie_site .whl/*.whl >"$OUT/wheels.txt" 2>&1
+# what the box lacks (plyfile, trimesh, tqdm) comes from wheels in an ignored .whl* folder, if carried
+if ! python3 -c "import plyfile, trimesh, tqdm" 2>/dev/null && ls .whl*/*.whl >/dev/null 2>&1; then
+  python3 -m pip install -q --no-index --no-deps --target /tmp/pixie_site .whl*/*.whl >"$OUT/wheels.txt" 2>&1
   export PYTHONPATH=/tmp/pixie_site:${PYTHONPATH:-}
 fi
 export PYTHONPATH=$PWD:${PYTHONPATH:-}
@@ -48,8 +52,19 @@ run_part() {
       grep -E "^warp|per substep|vs baseline|issue 14" "$OUT/sim.txt" | sed -E 's/ \(kernels alone.*//; s/\[.*//' \
         | cut -c1-230 ;;
     diagnose)
-      timeout 150 python3 benchmarks/bench_diagnose.py --part runtime --device cuda >"$OUT/diagnose.txt" 2>&1
-      grep -E "diagnosis incl|named:" "$OUT/diagnose.txt" ;;
+      timeout 110 python3 benchmarks/bench_diagnose.py --part runtime --device cuda --repeat 2 \
+        >"$OUT/diagnose.txt" 2>&1
+      grep -E "imports for|diagnosis incl|named:|per stage" "$OUT/diagnose.txt" | cut -c1-400 ;;
+    diagnose-ab)
+      PIXIE_TEST_DEVICES=cuda timeout 45 python3 -m pytest -q -p no:cacheprovider tests/test_sim_batched.py \
+        >"$OUT/diagnose_tests.txt" 2>&1
+      tail -2 "$OUT/diagnose_tests.txt"
+      timeout 25 python3 benchmarks/bench_diagnose.py --part runtime --device cuda --device-loop on \
+        >"$OUT/diagnose_loop.txt" 2>&1
+      grep -E "runtime:|diagnosis incl|named:|per stage" "$OUT/diagnose_loop.txt" | cut -c1-400
+      timeout 20 python3 benchmarks/bench_diagnose.py --part runtime --device cuda --graph-substeps 1 \
+        --imports timed >"$OUT/diagnose_ab.txt" 2>&1
+      grep -E "runtime:|diagnosis incl|named:" "$OUT/diagnose_ab.txt" | cut -c1-300 ;;
     batch)
       timeout 90 python3 benchmarks/bench_model_step.py --count 24 --device cuda --threads 1,2,3 \
         >"$OUT/model_step.txt" 2>&1
@@ -68,7 +83,7 @@ run_part() {
       grep -E "^device" "$OUT/p2g_sim.txt" | cut -c1-160
       grep -E "^warp|per substep|vs baseline|issue 14" "$OUT/p2g_sim.txt" | sed -E 's/ \(kernels alone.*//; s/\[.*//' \
         | cut -c1-190 ;;
-    *) echo "unknown part $1 (tests, simtests, sim, diagnose, batch, p2g)"; return 2 ;;
+    *) echo "unknown part $1 (tests, simtests, sim, diagnose, diagnose-ab, batch, p2g)"; return 2 ;;
   esac
 }
 for part in "$@"; do

@@ -73,3 +73,22 @@ def test_pool_process_reads_prepares_assembles_and_writes_without_torch(tmp_path
         assert ex.submit(torch_loaded).result() is False
     finally:
         ex.shutdown(wait=True)
+
+
+def test_blas_threads_caps_this_process_pool_and_restores_it():
+    """blas_threads sets the numpy OpenBLAS pool of the running process (already loaded, so the
+    environment variables cannot) and restores it, also after an error."""
+    import numpy as np
+
+    from pixie_gs.batch.worker_env import blas_thread_counts, blas_threads
+
+    before = blas_thread_counts()
+    if not before:
+        pytest.skip("no OpenBLAS found in this process (not Linux, or numpy built on another BLAS)")
+    with pytest.raises(RuntimeError):
+        with blas_threads(1):
+            assert blas_thread_counts() == [1] * len(before)
+            a = np.random.default_rng(0).random((300, 300))
+            assert np.isfinite((a @ a).sum())
+            raise RuntimeError("stop")
+    assert blas_thread_counts() == before

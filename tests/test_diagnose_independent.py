@@ -223,3 +223,28 @@ def test_cli_on_independent_drag_reports_floor_ambiguity_and_effective_values(cl
     assert s["gap_after"] < 0.3 * s["gap_before"]
     report = json.loads((out / "report.json").read_text())
     assert report["floor"]["gap_rms"] == pytest.approx(s["gap_before"])
+
+
+def test_checks_simulate_the_re_matched_gaussians_after_a_registration(cloud):
+    """prepare_tracks runs the geometry checks beside the model-as-given simulation of the tracked
+    Gaussians; when the registration re-matches the points to other Gaussians, that simulation is
+    made again for them: the baseline it primes is the simulation of the points as finally matched."""
+    from pixie_gs.diagnose.forward import sample_at, sim_schedule
+    from pixie_gs.diagnose.pipeline import DiagnoseOptions, prepare_tracks
+    from pixie_gs.sim.run import simulate
+
+    data = fixture("nothing")
+    a = np.radians(6.0)
+    R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    scene = independent_toss_scene(40)
+    options = DiagnoseOptions(batch=False)
+    for x, registered in ((data["x"], False), (data["x"] @ R.T + np.array([0.03, -0.02, 0.01]), True)):
+        tracks = tracks_from_arrays(data["t"], x, cloud, source="t.npz")
+        log: list = []
+        checked, reg, primed = prepare_tracks(tracks, cloud, scene, "cpu", options, log)
+        assert reg.registration_applied == registered
+        assert len(log) == (2 if registered else 1)
+        assert registered == (not np.array_equal(checked.ids, tracks.ids))
+        frames, fps = sim_schedule(checked.t)
+        alone = simulate(cloud, scene, frames, fps, device="cpu", quiet=True).x[:, checked.ids].astype(np.float64)
+        np.testing.assert_array_equal(primed, sample_at(alone, fps, checked.t))

@@ -226,6 +226,7 @@ def test_cuda_graph_replay_equals_plain_launches(device):
     replayed = BatchedSolver(runs, device, graph=True)
     launched = BatchedSolver(runs, device, graph=False)
     assert replayed.graph is not None and launched.graph is None
+    assert replayed.graph_unrolled is not None  # frames 2-4 (no impulse pending) replay it: ≥ 11 substeps each
     for _ in range(4):
         replayed.step_frame(1.0 / 25)
         launched.step_frame(1.0 / 25)
@@ -264,3 +265,91 @@ def test_close_rivals_on_the_reduced_model_are_settled_on_the_full_model(monkeyp
     assert sses["air_drag"] == min(sses.values()) and d.effect.sse == pytest.approx(sses["air_drag"], rel=1e-3)
     assert d.rounds[0].ranking[0].effect == "air_drag"
     assert d.gap_after <= 0.2 * d.gap_before
+
+
+def test_substep_plan_of_all_runs_equals_the_per_run_rule():
+    """BatchedSolver._plan (every run at once, numpy) gives _substeps' count for each run (the
+    per-run reference): random speeds and snow waves, pending impulses, a run over the budget."""
+    from pixie_gs.materials import SNOW
+
+    snow = block(E=3e4, material_id=SNOW)
+    runs = varied_runs() + [(snow, scene_with()), (block(E=5e10), scene_with())]
+    batch = BatchedSolver(runs, "cpu")
+    rng = np.random.default_rng(3)
+    for trial in range(40):
+        if trial == 20:
+            batch.step_frame(1.0 / 25)  # the t = 0 impulses are spent; one run's impulse still pending
+        maxima = np.stack([rng.uniform(0.0, 30.0, len(runs)), rng.uniform(0.0, 400.0, len(runs))], axis=1)
+        maxima[rng.random(len(runs)) < 0.2] = 0.0
+        frame_dt = float(rng.choice([1 / 25, 1 / 30, 1 / 60, 0.1]))
+        planned = batch._plan(frame_dt, maxima)
+        alive = batch.alive
+        rule = [batch._substeps(r, frame_dt, float(maxima[r, 0]), float(maxima[r, 1])) if alive[r] else 0
+                for r in range(len(runs))]
+        assert planned.tolist() == rule
+    assert 0 in rule and max(rule) > 1  # the over-budget run, and runs needing several substeps
+
+
+def test_grids_are_clear_after_every_frame(device):
+    """step_frame does not clear the grids: each grid launch clears the nodes it read, which must
+    be every node P2G touched (runs with fewer substeps, a stopped run, the CPU's active box)."""
+    runs = varied_runs()[:6]
+    batch = BatchedSolver(runs, device)
+    for _ in range(3):
+        batch.step_frame(1.0 / 25)
+        for grid in (batch.grid_mass, batch.grid_momentum, batch.grid_fixed):
+            assert not np.any(grid.numpy())
+
+
+def test_frames_on_the_device_equal_step_frame(device):
+    """DeviceFrames (plan, substep loop, statistics, guard and tracked points all on the device, one
+    read-back at the end) takes step_frame's substeps: the same positions (CPU: bit for bit),
+    substep counts, dt, clock and host bookkeeping afterwards."""
+    from pixie_gs.sim.device_frames import DeviceFrames, device_loop_available
+
+    if not device_loop_available(device):
+        pytest.skip("no conditional CUDA graphs here (CUDA 12.4+)")
+    runs = varied_runs()
+    stepped, looped = BatchedSolver(runs, device), BatchedSolver(runs, device)
+    for _ in range(3):  # the last impulse (run 7, t = 0.04 s) is applied by then
+        stepped.step_frame(1.0 / 25)
+        looped.step_frame(1.0 / 25)
+    slots = np.arange(looped.n)
+    history = DeviceFrames(looped, 1.0 / 25, slots, 10).run(5)
+    for i in range(5):
+        stepped.step_frame(1.0 / 25)
+        np.testing.assert_allclose(history[i], stepped.positions(), rtol=0, atol=tol(device), err_msg=f"frame {i}")
+    assert looped.substeps_last_frame == stepped.substeps_last_frame
+    assert looped.frame == stepped.frame == 8 and looped.time_s == stepped.time_s
+    assert looped.substeps_total == stepped.substeps_total
+    assert [looped.dt(r) for r in range(len(runs))] == [stepped.dt(r) for r in range(len(runs))]
+    np.testing.assert_allclose(looped.positions(), stepped.positions(), rtol=0, atol=tol(device))
+    looped.step_frame(1.0 / 25)  # the host loop carries on from the device's frames
+    stepped.step_frame(1.0 / 25)
+    np.testing.assert_allclose(looped.positions(), stepped.positions(), rtol=0, atol=tol(device))
+
+
+def test_device_loop_stops_diverging_and_over_budget_runs_as_step_frame_does(device):
+    """simulate_batch with the frames on the device: a run that diverges gets step_frame's error
+    (same frame, time and counts), a run over the substep budget is run alone, the others match."""
+    from pixie_gs.sim.device_frames import device_loop_available
+
+    if not device_loop_available(device):
+        pytest.skip("no conditional CUDA graphs here (CUDA 12.4+)")
+    cloud = two_part_block(300, seed=3)
+    still = {"object": {"size_m": 0.3, "position": [-0.15, 0.0, 0.1]}, "domain": {"size_m": 1.0, "grid": 20},
+             "solver": {"max_substeps_per_frame": 40}}  # no impulse: every frame on the device
+    scene = Scene.from_dict(still)
+    stiff = cloud.copy()  # over the budget at the device's first plan
+    stiff.set("E", np.full(len(cloud), 5e6, np.float32), np.float32)
+    wild = Scene.from_dict({**still, "wind": [{"acceleration": [3000.0, 0.0, 0.0], "start_s": 0.1}]})
+    drag = Scene.from_dict({**still, "air_drag": 2.0, "gravity": [0.0, 0.0, -30.0]})
+    models = [(cloud, scene), (stiff, scene), (cloud, wild), (cloud, drag)]
+    ids = np.arange(0, 300, 7)
+    host = simulate_batch(models, 12, 25.0, device=device, points=ids, device_loop=False)
+    loop = simulate_batch(models, 12, 25.0, device=device, points=ids, device_loop=True)
+    assert isinstance(host[2], ComputationError) and str(loop[2]) == str(host[2])
+    assert "diverged at frame 3 " in str(host[2])  # the wind starts at 0.1 s: a device frame's guard
+    for r in (0, 1, 3):
+        np.testing.assert_allclose(loop[r].x, host[r].x, rtol=0, atol=tol(device))
+        assert (loop[r].dt_s, loop[r].substeps_per_frame) == (host[r].dt_s, host[r].substeps_per_frame)

@@ -9,7 +9,7 @@ Why so few runs: one simulation costs seconds on a 2-core CPU, so every candidat
      with the baseline it gives a finite-difference sensitivity J (the change of every tracked
      coordinate per unit parameter, in the coordinate where the effect is near-linear: the rate
      itself for damping/drag/wind/friction, log10 of a scale factor for E and ρ), and the
-     bounded linear least-squares step δ = argmin ‖r − Jδ‖ (scipy lsq_linear) predicts the
+     bounded linear least-squares step δ = argmin ‖r − Jδ‖ (lsq.bounded_lstsq) predicts the
      best value and the residual it would leave. Strongly non-linear effects (a part's E or ρ
      scale, whose SSE valley is narrow once oscillation phases shift; plastic yield, a threshold
      with no vanishing value) also get a few more probes — a coarse scan.
@@ -33,6 +33,7 @@ from typing import Callable, Generator
 import numpy as np
 
 from ..errors import ComputationError
+from ..lsq import bounded_lstsq
 from ..progress import progress
 from .effects import Effect, EffectContext, Param
 from .locate import residuals, sum_squares
@@ -218,8 +219,6 @@ def screen_all(problem: Problem, cands: list[Candidate],
 
 def predict_linear(problem: Problem, cand: Candidate, r_flat: np.ndarray, start: dict[str, float]) -> None:
     """Bounded linear least squares of residual `r_flat` on J from `start` → predicted values/SSE."""
-    from scipy.optimize import lsq_linear
-
     assert cand.jacobian is not None
     J = cand.jacobian
     lo = np.array([linear_coord(p, p.lo) - linear_coord(p, start[p.name]) for p in cand.params])
@@ -232,8 +231,7 @@ def predict_linear(problem: Problem, cand: Candidate, r_flat: np.ndarray, start:
     # the same minimiser on the k×k triangle: J = QR gives ‖r − Jδ‖² = ‖r − QQᵀr‖² + ‖Qᵀr − Rδ‖²
     # (J has one row per tracked coordinate — 10⁵ or more — and k ≤ 3 columns)
     Q, R = np.linalg.qr(J)
-    sol = lsq_linear(R, Q.T @ r_flat, bounds=(lo, hi + 1e-12), method="bvls" if J.shape[1] <= 3 else "trf")
-    delta = sol.x
+    delta = bounded_lstsq(R, Q.T @ r_flat, lo, hi + 1e-12)   # exact: every active set of the k ≤ 3 bounds tried
     cand.linear_values = {p.name: from_linear_coord(p, linear_coord(p, start[p.name]) + d)
                           for p, d in zip(cand.params, delta)}
     cand.predicted_sse = float(np.sum(np.square(r_flat - J @ delta)))

@@ -23,7 +23,7 @@ import copy
 import hashlib
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -31,6 +31,21 @@ from ..errors import ComputationError, InputError
 from ..progress import is_quiet, set_quiet
 from ..splat import SplatCloud
 from .measured import MeasuredTracks
+
+
+@dataclass
+class SimRecord:
+    """One simulation a diagnosis made: a batch of runs, or one run alone (the timeline the
+    benchmark prints: what ran when, and how long the host worked between simulations)."""
+
+    stage: str          # the pipeline stage that asked for it (ForwardModel.stage)
+    start_s: float      # time.perf_counter() at its start
+    seconds: float      # wall time
+    runs: int
+    particles: int      # all runs together
+    grid: int           # cells along the longest side
+    frames: int
+    stats: dict = field(default_factory=dict)  # batched: sim.batch.simulate_batch's `stats`
 
 
 @dataclass
@@ -90,6 +105,8 @@ class ForwardModel:
         self.fidelity = fidelity or Fidelity()
         self.runs = 0
         self.seconds = 0.0
+        self.stage = ""                          # label of the pipeline stage now running (for `log`)
+        self.log: list[SimRecord] = []           # every simulation made, in order
         self.keep: np.ndarray | None = None      # Gaussians of the reduced model (None: not reduced)
         self.reduced_ids: np.ndarray | None = None
         self.grid_scale = 1.0
@@ -165,14 +182,15 @@ class ForwardModel:
                     start = time.perf_counter()
                     quiet = is_quiet()
                     set_quiet(True)
+                    stats: dict = {}
                     try:
                         trajs = simulate_batch([todo[k] for k in chunk], self.frames, self.fps, device=self.device,
-                                               fill=self.fill, points=ids)
+                                               fill=self.fill, points=ids, stats=stats)
                     finally:
                         set_quiet(quiet)
                         self.runs += len(chunk)
                         self.batches += 1
-                        self.seconds += time.perf_counter() - start
+                        self._record(start, len(chunk), size, todo[chunk[0]][1], stats)
                     for k, traj in zip(chunk, trajs):
                         out[k] = traj if isinstance(traj, Exception) else \
                             sample_at(traj.x.astype(np.float64), self.fps, self.tracks.t)
@@ -193,8 +211,14 @@ class ForwardModel:
         finally:
             set_quiet(quiet)
             self.runs += 1
-            self.seconds += time.perf_counter() - start
+            self._record(start, 1, len(cloud), scene)
         return sample_at(traj.x[:, ids].astype(np.float64), self.fps, self.tracks.t)
+
+    def _record(self, start: float, runs: int, particles: int, scene, stats: dict | None = None) -> None:
+        seconds = time.perf_counter() - start
+        self.seconds += seconds
+        self.log.append(SimRecord(self.stage, start, seconds, runs, particles, int(scene.domain.grid), self.frames,
+                                  stats or {}))
 
     def simulate_full(self, scene, cloud: SplatCloud | None = None) -> np.ndarray:
         """Tracked points (T,M,3) of the full model `cloud` (default: the input) in `scene`."""

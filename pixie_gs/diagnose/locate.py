@@ -62,13 +62,15 @@ def noise_sigma(r: np.ndarray, visible: np.ndarray) -> float:
 
 
 def spatial_clusters(rest_positions: np.ndarray, k: int = 4, seed: int = 0) -> np.ndarray:
-    """k-means labels (M,) of the tracked points' rest positions (deterministic for `seed`)."""
-    from scipy.cluster.vq import kmeans2
+    """k-means labels (M,) of the tracked points' rest positions (k-means++ seeds, deterministic
+    for `seed`, without importing scipy: kmeans.py); fewer than k clusters when there are fewer
+    distinct positions, numbered by their centres' coordinates."""
+    from ..kmeans import kmeans_pp
 
     k = int(max(1, min(k, len(rest_positions))))
     if k == 1:
         return np.zeros(len(rest_positions), np.int64)
-    _, labels = kmeans2(np.asarray(rest_positions, np.float64), k, seed=seed, minit="++")
+    _, labels = kmeans_pp(np.asarray(rest_positions, np.float64), k, seed=seed)
     return labels.astype(np.int64)
 
 

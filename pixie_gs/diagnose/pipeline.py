@@ -19,20 +19,19 @@ from ..progress import stage
 from ..splat import SplatCloud
 from .effects import Effect, get_effect, registry
 from .fit import Candidate, Problem, drop_predictions, make_candidates, predict_linear, refine_all, screen_all, verify_all
-from .forward import Fidelity, ForwardModel
+from .forward import Fidelity, ForwardModel, SimRecord
 from .locate import Location, locate, residuals, rms_gap, spatial_clusters
 from .ambiguity import ambiguous_with
 from .checks import Registration, check_geometry, fit_time_offset, outlier_tracks
 from .floor import SolverFloor, estimate_floor
 from .measured import MeasuredTracks
-from .score import BIC_THRESHOLD, MIN_EXCESS_EXPLAINED, Scored, rank, score_candidate
+from .score import BIC_THRESHOLD, MIN_EXCESS_EXPLAINED, Scored, can_be_significant, rank, score_candidate
 
 
 OFFSET_SEARCH_FRAMES = 3.0      # start-time offsets searched: ± this many frames
 RIVAL_WITHIN = 0.1              # reduced model: rivals within 10 % of the winner's ΔBIC are settled on the full model
 MAX_RIVALS = 2
 MAX_CORRECTIONS = 3             # full-model secant corrections of an effect fitted on the reduced model
-FIT_MODULES = ("scipy.optimize", "scipy.cluster.vq")   # lsq_linear (fit.py), kmeans2 (locate.py)
 OFFSET_MAX_LOSS_RATIO = 0.3     # an applied offset must cut the early frames' Huber loss by 70 %
 
 
@@ -67,6 +66,7 @@ class RoundResult:
     location: Location
     ranking: list[Scored]
     chosen: Scored | None
+    note: str | None = None   # why the round made no runs, when it could not name anything
 
 
 @dataclass
@@ -89,6 +89,7 @@ class Diagnosis:
     floor: SolverFloor | None = None
     ambiguous: list[Scored] = field(default_factory=list)
     sim_batches: int = 0  # batched simulations among `runs` (each counted per variant in runs)
+    sim_log: list[SimRecord] = field(default_factory=list)  # every simulation, the checks' included
 
     @property
     def converged(self) -> bool:
@@ -187,6 +188,13 @@ class _Runner:
         if not np.isfinite(self.sigma):
             self.sigma = 0.0
         n = tracks.num_observations
+        if index > 1 and not can_be_significant(problem.base_sse, n, self.sigma, self.original_sse, self.floor_c,
+                                                min_excess_explained=opts.min_excess_explained):
+            note = ("no runs: the gap left is too small for any further effect to be significant (it must "
+                    "remove a share of the above-noise gap of the model as given, more than solver error "
+                    "could fake)")
+            stage(f"round {index}: RMS gap {loc.rms:.4g}; nothing significant can be left: {note}")
+            return RoundResult(index, problem.base_sse, loc.rms, loc, [], None, note), [], {}
         movable = movable_parts(cloud, scene)
         parts = [p for p in loc.ranked_parts() if p in movable][: opts.max_parts]
         labels = {"part": cloud.get("part_id")[tracks.ids],
@@ -195,6 +203,7 @@ class _Runner:
                  if (c.effect.name, c.part) not in exclude]
         stage(f"round {index}: RMS gap {loc.rms:.4g} (noise σ ≈ {self.sigma:.2g} per axis); "
               f"worst part {parts[0] if parts else '-'}; {len(cands)} candidates")
+        self.model.stage = f"screen {index}"
         if previous is None:
             screen_all(problem, cands, desc=f"screen (round {index})")
         else:
@@ -221,6 +230,7 @@ class _Runner:
             return min(vals) if vals else float("inf")
 
         cands.sort(key=estimate)
+        self.model.stage = f"verify {index}"
         verify_all(problem, cands[: opts.verify_top], desc=f"verify (round {index})")
         cands.sort(key=lambda c: c.best.sse if c.best else float("inf"))
         # the top `refine_top`, plus runner-ups whose verified fit is within REFINE_WITHIN × the best
@@ -233,6 +243,7 @@ class _Runner:
                      and score_candidate(c.effect.name, c.part, {}, len(c.params), c.best.sse, problem.base_sse,
                                          n, self.sigma).delta_bic > 0
                      and self.excess_share(problem, c.best.sse, n) >= opts.min_refine_explained]
+        self.model.stage = f"refine {index}"
         refine_all(problem, promising, opts.max_evals, desc=f"refine (round {index})")
         scored = [s for s in (self.score(problem, c, labels, n) for c in cands) if s is not None]
         ranking = rank(scored)
@@ -255,10 +266,18 @@ class _Runner:
 
 def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "auto",
              options: DiagnoseOptions | None = None, cache: dict | None = None) -> Diagnosis:
-    """Find, fit and add the effects the model (cloud + scene) is missing versus `tracks`."""
-    from ..prefetch import prefetch
+    """Find, fit and add the effects the model (cloud + scene) is missing versus `tracks`.
 
-    prefetch(*FIT_MODULES)  # imported while the first simulations run
+    numpy's BLAS runs on one thread meanwhile (batch/worker_env.blas_threads): the fit's matrix
+    work is a few columns at a time, and a pool sized to every core only spins between calls."""
+    from ..batch.worker_env import blas_threads
+
+    with blas_threads(1):
+        return _diagnose(cloud, scene, tracks, device, options, cache)
+
+
+def _diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str, options: DiagnoseOptions | None,
+              cache: dict | None) -> Diagnosis:
     options = options or DiagnoseOptions()
     effects = list(registry().values()) if not options.effects else [get_effect(n) for n in options.effects]
     if not effects:
@@ -266,13 +285,14 @@ def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "au
     work, from_materials = working_cloud(cloud)
     registration = None
     primed = None
+    checks_log: list[SimRecord] = []
     if options.batch is None:  # batched simulation on a GPU only (forward.py)
         from ..devices import resolve_warp_device
 
         options = copy.copy(options)
         options.batch = resolve_warp_device(device) != "cpu"
     if options.checks:
-        tracks, registration, primed = prepare_tracks(tracks, work, scene, device, options)
+        tracks, registration, primed = prepare_tracks(tracks, work, scene, device, options, checks_log)
     model = ForwardModel(work, tracks, device=device, fill=options.fill, fidelity=options.fidelity, cache=cache,
                          batch=options.batch)
     if primed is not None:
@@ -280,11 +300,14 @@ def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "au
     if model.is_reduced:
         stage(f"fitting on a reduced model: {len(model.keep)} of {len(work)} Gaussians, "
               f"grid × {model.grid_scale:g} (delta-corrected against the full model)")
+    model.log[:0] = checks_log
     runner = _Runner(model, tracks, options, effects)
+    model.stage = "baseline"
     stage("simulating the model as given")
     base_pred = model.set_baseline(scene, work)
     stage(f"solver-error floor: re-running the model as given on a finer grid" if options.solver_floor else
           "solver-error floor: off")
+    model.stage = "floor"
     floor = estimate_floor(model, scene, work, base_pred, tracks, enabled=options.solver_floor)
     runner.floor_c = floor.per_coordinate
     if floor.enabled:
@@ -299,7 +322,8 @@ def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "au
         loc = locate(r0, tracks.visible, work, tracks.ids)
         rnd = RoundResult(1, float(np.sum(r0 ** 2)), loc.rms, loc, [], None)
         return Diagnosis([rnd], [], copy.deepcopy(scene), work, tracks, base_pred, base_pred, loc.noise_sigma,
-                         model.runs, model.seconds, model.cache_hits, from_materials, registration, floor)
+                         model.runs, model.seconds, model.cache_hits, from_materials, registration, floor,
+                         sim_batches=model.batches, sim_log=model.log)
     cur_scene, cur_cloud, cur_pred = scene, work, base_pred
     rounds: list[RoundResult] = []
     accepted: list[Scored] = []
@@ -320,6 +344,7 @@ def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "au
         cur_scene, cur_cloud = winner.effect.apply(cur_scene, cur_cloud, winner.part, dict(chosen.params))
         if model.is_reduced:
             stage("re-simulating the full model with the added effect")
+            model.stage = f"polish {index}"
             exclude.discard((chosen.effect, chosen.part))
             winner, (cur_scene, cur_cloud, cur_pred, chosen) = _settle_on_full_model(
                 runner, problem, result, by_key, before_scene, before_cloud)
@@ -328,6 +353,7 @@ def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "au
             accepted.append(chosen)
         else:
             accepted.append(chosen)
+            model.stage = f"add {index}"
             cur_pred = winner.best.pred if winner.best and winner.best.pred is not None \
                 else model.simulate_full(cur_scene, cur_cloud)
             model.set_baseline(cur_scene, cur_cloud, full_prediction=cur_pred)
@@ -342,38 +368,40 @@ def diagnose(cloud: SplatCloud, scene, tracks: MeasuredTracks, device: str = "au
                   f"{', '.join(a.label for a in ambiguous)}")
     return Diagnosis(rounds, accepted, copy.deepcopy(cur_scene), cur_cloud, tracks, base_pred, cur_pred,
                      runner.sigma, model.runs, model.seconds, model.cache_hits, from_materials, registration,
-                     floor, ambiguous, model.batches)
+                     floor, ambiguous, model.batches, model.log)
 
 
-def prepare_tracks(tracks: MeasuredTracks, cloud: SplatCloud, scene, device: str, options: DiagnoseOptions
-                   ) -> tuple[MeasuredTracks, Registration, np.ndarray]:
+def prepare_tracks(tracks: MeasuredTracks, cloud: SplatCloud, scene, device: str, options: DiagnoseOptions,
+                   log: list[SimRecord] | None = None) -> tuple[MeasuredTracks, Registration, np.ndarray]:
     """Registration and sanity before physics (checks.py): units, rigid registration at t₀, match
     distances; then, from ONE simulation of the model as given, the start-time offset and the
-    outlier tracks → (checked tracks, what was found, their baseline prediction for the cache)."""
-    from ..progress import is_quiet, set_quiet
-    from ..sim.run import simulate
+    outlier tracks → (checked tracks, what was found, their baseline prediction for the cache).
+    The simulation is appended to `log`.
+
+    The geometry checks (host work: nearest neighbours, ICP) run on a worker thread while that
+    simulation runs — it needs only the tracked Gaussians, which the checks change only when they
+    re-match the points (units or registration applied to tracks without ids): then it runs again."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from .forward import sample_at, sim_schedule
     from .locate import noise_sigma
 
-    tracks, reg = check_geometry(tracks, cloud, options.units)
-    frames, fps = sim_schedule(tracks.t)
-    quiet = is_quiet()
-    set_quiet(True)
-    try:
-        stage("checks: simulating the model as given for the start-time offset and outlier tracks")
-        if options.batch:  # the same solver path as every fitting run (sim/batch.py)
-            from ..sim.batch import simulate_batch
-
-            traj = simulate_batch([(cloud, scene)], frames + 4, fps, device=device, fill=options.fill,
-                                  points=tracks.ids)[0]
-            if isinstance(traj, Exception):
-                raise traj
-            xs = traj.x.astype(np.float64)
-        else:
-            traj = simulate(cloud, scene, frames + 4, fps, device=device, fill=options.fill)
-            xs = traj.x[:, tracks.ids].astype(np.float64)
-    finally:
-        set_quiet(quiet)
+    frames, fps = sim_schedule(tracks.t)  # the checks change positions and ids, never the clock
+    if options.units not in (None, "m"):  # converted units re-match tracks without ids: checks first
+        tracks, reg = check_geometry(tracks, cloud, options.units)
+        xs = _simulate_as_given(cloud, scene, frames, fps, tracks.ids, device, options, log)
+    else:
+        with ThreadPoolExecutor(1, thread_name_prefix="pixie-checks") as pool:
+            geometry = pool.submit(check_geometry, tracks, cloud, options.units)
+            try:
+                xs = _simulate_as_given(cloud, scene, frames, fps, tracks.ids, device, options, log)
+            except BaseException:
+                geometry.result()  # an input error of the tracks comes first, as when the checks ran first
+                raise
+            checked, reg = geometry.result()
+        if not np.array_equal(checked.ids, tracks.ids):  # registered and re-matched: other Gaussians
+            xs = _simulate_as_given(cloud, scene, frames, fps, checked.ids, device, options, log)
+        tracks = checked
     delta, loss_best, loss_zero = fit_time_offset(xs, fps, tracks.x, tracks.visible, tracks.t,
                                                   max_frames=OFFSET_SEARCH_FRAMES)
     reg.time_offset_s = float(delta)
@@ -408,6 +436,39 @@ def prepare_tracks(tracks: MeasuredTracks, cloud: SplatCloud, scene, device: str
     if primed is not None and bad.any() and (~bad).sum() >= 10:
         primed = primed[:, np.nonzero(~bad)[0]]
     return tracks, reg, primed
+
+
+def _simulate_as_given(cloud: SplatCloud, scene, frames: int, fps: float, ids: np.ndarray, device: str,
+                       options: DiagnoseOptions, log: list[SimRecord] | None) -> np.ndarray:
+    """The tracked Gaussians `ids` of the model as given over frames + 4 frames → (F, M, 3) float64."""
+    import time
+
+    from ..progress import is_quiet, set_quiet
+    from ..sim.run import simulate
+
+    quiet = is_quiet()
+    set_quiet(True)
+    start = time.perf_counter()
+    sim_stats: dict = {}
+    try:
+        stage("checks: simulating the model as given for the start-time offset and outlier tracks")
+        if options.batch:  # the same solver path as every fitting run (sim/batch.py)
+            from ..sim.batch import simulate_batch
+
+            traj = simulate_batch([(cloud, scene)], frames + 4, fps, device=device, fill=options.fill,
+                                  points=ids, stats=sim_stats)[0]
+            if isinstance(traj, Exception):
+                raise traj
+            xs = traj.x.astype(np.float64)
+        else:
+            traj = simulate(cloud, scene, frames + 4, fps, device=device, fill=options.fill)
+            xs = traj.x[:, ids].astype(np.float64)
+    finally:
+        set_quiet(quiet)
+    if log is not None:
+        log.append(SimRecord("checks", start, time.perf_counter() - start, 1, len(cloud), int(scene.domain.grid),
+                             frames + 4, sim_stats))
+    return xs
 
 
 def _settle_on_full_model(runner: _Runner, problem: Problem, result: RoundResult, by_key: dict,

@@ -103,6 +103,29 @@ def score_candidate(effect: str, part: int | None, params: dict, num_params: int
                   significant, evaluations)
 
 
+def can_be_significant(baseline_sse: float, n: int, noise_sigma: float, original_sse: float | None = None,
+                       floor_sigma: float = 0.0, floor_factor: float = 2.0,
+                       min_excess_explained: float = MIN_EXCESS_EXPLAINED) -> bool:
+    """False when NO candidate, however well it fitted (any SSE ≥ 0), could pass score_candidate's
+    significance rules against this baseline — a round that cannot name anything needs no runs.
+
+    With SSE ≥ 0 a candidate removes at most `baseline_sse`, so it fails when the baseline is within
+    `floor_factor`·n·f² of zero (solver error could fake all of it), when nothing is above the noise
+    (excess 0: it explains no share of it), or, in a chain, when the whole baseline is less than
+    MIN_ORIGINAL_SHARE of the first model's above-noise gap.
+    """
+    noise2 = noise_sigma ** 2 + floor_sigma ** 2
+    if not baseline_sse > floor_factor * n * floor_sigma ** 2:
+        return False
+    if min_excess_explained > 0 and not baseline_sse - n * noise2 > 0:
+        return False
+    if original_sse is not None and original_sse > baseline_sse:
+        original_excess = max(original_sse - n * noise2, 1e-300)
+        if baseline_sse / original_excess < MIN_ORIGINAL_SHARE:
+            return False
+    return True
+
+
 def rank(candidates: list[Scored]) -> list[Scored]:
     """Best first: by ΔBIC (which already penalises extra parameters)."""
     return sorted(candidates, key=lambda c: -c.delta_bic)

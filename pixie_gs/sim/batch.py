@@ -17,6 +17,7 @@ Runs must share the grid (domain origin, cell size, node counts), walls, constit
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,6 +37,10 @@ from .state import State
 
 CUDA_GRAPH = True  # default of BatchedSolver(graph=None): on a GPU, replay each substep as one CUDA
 # graph (four launches for one: a batch of small runs is launch-bound; tested against plain launches)
+DEVICE_LOOP = False  # default of simulate_batch(device_loop=None): frames planned, stepped and guarded on
+# the device, nothing read back until the end (device_frames.py; on a GPU where conditional graphs exist)
+GRAPH_SUBSTEPS = 4  # ... and GRAPH_SUBSTEPS substeps as one more graph: a frame of n substeps is
+# n // GRAPH_SUBSTEPS replays of that one plus n % GRAPH_SUBSTEPS of the single-substep graph
 
 
 def batch_key(scene: Scene) -> tuple:
@@ -132,6 +137,11 @@ class BatchedSolver:
             self._set_stiffness(run)
             run.accel = float(np.linalg.norm(run.scene.gravity)) + run.wind_peak
             run.has_snow = bool(run.moving_snow.any())
+        # the same per-run figures as arrays, for planning every run's substeps at once (_plan)
+        self._c_static = np.array([run.c_static for run in self._runs], np.float64)
+        self._accel = np.array([run.accel for run in self._runs], np.float64)
+        self._has_snow = np.array([run.has_snow for run in self._runs], bool)
+        self._alive = np.ones(self.k, bool)  # mirror of run.alive (set through _stop)
         shape = (self.k,) + tuple(self.dims)
         self.grid_mass = wp.zeros(shape, dtype=float, device=d)
         self.grid_momentum = wp.zeros(shape, dtype=wp.vec3, device=d)
@@ -161,19 +171,30 @@ class BatchedSolver:
         self._uploaded: dict[int, np.ndarray] = {}  # last values sent per device array
         self._x_host: np.ndarray | None = None       # positions fetched at the end of frame _x_frame
         self._x_frame = -1
+        self.substeps_total = 0                      # substep launches so far (all runs together)
+        self.wait_s = 0.0                            # GPU: host time spent waiting in end-of-frame syncs
         self._record_launches()
-        self.graph = None
+        self.graph = None                    # one substep (p2g, grid, g2p, substep += 1)
+        self.graph_unrolled = None           # GRAPH_SUBSTEPS substeps
         if d != "cpu" and (CUDA_GRAPH if graph is None else graph):
-            wp.capture_begin(device=d, force_module_load=True)
-            try:
+            self.graph = self._capture(1)
+            if GRAPH_SUBSTEPS > 1:
+                self.graph_unrolled = self._capture(GRAPH_SUBSTEPS)
+
+    # ------------------------------------------------------------------ set-up
+    def _capture(self, substeps: int):
+        """A CUDA graph of `substeps` consecutive substeps' launches."""
+        wp.capture_begin(device=self.device, force_module_load=True)
+        try:
+            for _ in range(substeps):
                 self._p2g.launch()
                 self._grid.launch()
                 self._g2p.launch()
                 self._next.launch()
-            finally:
-                self.graph = wp.capture_end(device=d)
+        finally:
+            graph = wp.capture_end(device=self.device)
+        return graph
 
-    # ------------------------------------------------------------------ set-up
     def _forces(self, scenes: list[Scene]) -> bk.RunForces:
         d = self.device
         f = bk.RunForces()
@@ -217,6 +238,11 @@ class BatchedSolver:
                                       st.Jp, self.fixed_flag, self.run, self.grid_info, self.material_params,
                                       self.dt_run, self.n_sub, self.substep, self.grid_velocity, st.stress])
         self._next = wp.launch(bk.advance_substep, dim=1, device=d, record_cmd=True, inputs=[self.substep, 1, 1])
+        self._first = wp.launch(bk.advance_substep, dim=1, device=d, record_cmd=True, inputs=[self.substep, 0, 0])
+        self._stats_launch = wp.launch(bk.run_stats, dim=self.n, device=d, record_cmd=True,
+                                       inputs=[st.x, st.v, st.F, st.Jp, self.material, self.fixed_flag, self.wave_c,
+                                               self.run, self.alive_flag, self.scene.materials.snow_hardening,
+                                               self.v_limit, MAX_STRETCH, self.maxima, self.bad])
         self._box_arg = self._arg_index(self._grid, "box_lo")
 
     @staticmethod
@@ -243,6 +269,8 @@ class BatchedSolver:
         return max(run.c_static, snow_wave) if run.has_snow else run.c_static
 
     def _substeps(self, r: int, frame_dt_s: float, max_speed: float, snow_wave: float) -> int:
+        """Substeps run r takes in its next frame (as MPMSolver plans them; 0: over the budget) —
+        the plain per-run reference of _plan, which step_frame uses (tested equal)."""
         run = self._runs[r]
         s = self.scene.solver
         dt = self._cfl_dt(self._wave_speed(run, snow_wave))
@@ -254,6 +282,27 @@ class BatchedSolver:
         v_bound = max_speed + run.accel * frame_dt_s + kicks
         n_velocity = math.ceil(frame_dt_s * v_bound / (s.velocity_cfl * self.dx))
         return int(min(max(1, n_elastic, n_velocity), s.max_substeps_per_frame))
+
+    def _plan(self, frame_dt_s: float, maxima: np.ndarray) -> np.ndarray:
+        """_substeps of every run at once (0 for runs not alive, and for runs over the substep
+        budget): the same float64 operations in the same order, elementwise, so the same counts."""
+        s = self.scene.solver
+        snow = maxima[:, 1]
+        c = np.where(self._has_snow, np.maximum(self._c_static, snow), self._c_static)
+        with np.errstate(divide="ignore"):
+            dt = np.where(c == 0.0, math.inf, s.cfl * self.dx / np.where(c == 0.0, 1.0, c))
+        n_elastic = np.where(np.isfinite(dt), np.ceil(frame_dt_s / dt), 1.0)
+        kicks = np.zeros(self.k)
+        if self._pending:
+            for r in range(self.k):
+                run = self._runs[r]
+                kicks[r] = sum(float(np.linalg.norm(run.scene.impulses[i].velocity_change)) for rr, i in self._pending
+                               if rr == r and run.scene.impulses[i].time_s < self.time_s + frame_dt_s)
+        v_bound = maxima[:, 0] + self._accel * frame_dt_s + kicks
+        n_velocity = np.ceil(frame_dt_s * v_bound / (s.velocity_cfl * self.dx))
+        n = np.minimum(np.maximum(np.maximum(1.0, n_elastic), n_velocity), s.max_substeps_per_frame)
+        n = np.where(n_elastic > s.max_substeps_per_frame, 0.0, n)
+        return np.where(self._alive, n, 0.0).astype(np.int32)
 
     # ------------------------------------------------------------------ host <-> device
     def _host_mirror(self, a: wp.array) -> wp.array:
@@ -287,7 +336,9 @@ class BatchedSolver:
         bufs = [self._host_mirror(a) for a in arrays]
         for buf, a in zip(bufs, arrays):
             wp.copy(buf, a)
+        start = time.perf_counter()
         wp.synchronize_device(self.device)
+        self.wait_s += time.perf_counter() - start
         return [buf.numpy() for buf in bufs]
 
     # ------------------------------------------------------------------ stepping
@@ -295,14 +346,11 @@ class BatchedSolver:
         """Per-run (maxima (K,2): fastest particle, fastest snow wave; bad (K,7) per material);
         with `fetch_positions` on a GPU, the positions come back in the same sync."""
         self._upload(self.v_limit, v_limits.astype(np.float32))
-        self._upload(self.alive_flag, np.array([int(r.alive) for r in self._runs], np.int32))
+        self._upload(self.alive_flag, self._alive.astype(np.int32))
         self.maxima.zero_()
         self.bad.zero_()
         st = self.state
-        wp.launch(bk.run_stats, dim=self.n, device=self.device,
-                  inputs=[st.x, st.v, st.F, st.Jp, self.material, self.fixed_flag, self.wave_c, self.run,
-                          self.alive_flag, self.scene.materials.snow_hardening, self.v_limit, MAX_STRETCH,
-                          self.maxima, self.bad])
+        self._stats_launch.launch()
         with_x = self.fetch_positions and self.device != "cpu"
         out = self._fetch([self.maxima, self.bad] + ([st.x] if with_x else []))
         if with_x:
@@ -311,7 +359,12 @@ class BatchedSolver:
 
     @property
     def alive(self) -> np.ndarray:
-        return np.array([r.alive for r in self._runs])
+        """Per run: still being simulated (a copy)."""
+        return self._alive.copy()
+
+    def _stop(self, r: int) -> None:
+        self._runs[r].alive = False
+        self._alive[r] = False
 
     @property
     def errors(self) -> list[ComputationError | None]:
@@ -340,14 +393,10 @@ class BatchedSolver:
             raise InputError(f"frame duration must be a positive number of seconds, got {frame_dt_s}")
         if self._stats is None:
             self._stats = self._reduce(np.full(self.k, FAR))
-        maxima = self._stats[0]
-        n_sub = np.zeros(self.k, np.int32)
-        for r, run in enumerate(self._runs):
-            if run.alive:
-                n_sub[r] = self._substeps(r, frame_dt_s, float(maxima[r, 0]), float(maxima[r, 1]))
-                if n_sub[r] == 0:
-                    run.alive = False
-                    run.over_budget = True
+        n_sub = self._plan(frame_dt_s, self._stats[0])
+        for r in np.nonzero(self._alive & (n_sub == 0))[0]:
+            self._stop(int(r))
+            self._runs[r].over_budget = True
         dts = np.where(n_sub > 0, frame_dt_s / np.maximum(n_sub, 1), 0.0)
         self._upload(self.n_sub, n_sub)
         self._upload(self.dt_run, dts.astype(np.float32))
@@ -357,22 +406,30 @@ class BatchedSolver:
         if self._substep_host is not None:
             self._substep_host[0] = 0
         else:
-            wp.launch(bk.advance_substep, dim=1, device=self.device, inputs=[self.substep, 0, 0])
-        self.grid_mass.zero_()
-        self.grid_momentum.zero_()
-        self.grid_fixed.zero_()
+            self._first.launch()
+        # no grid clearing: the grids start at zero and every grid launch clears the nodes it read
+        # (all nodes P2G can have touched: a run's own nodes, on the CPU the live particles' box)
         alive_slots = None
-        if self.device == "cpu" and not self.alive.all():
-            alive_slots = np.repeat(self.alive, np.diff(self.offsets))
-        for s in range(int(n_sub.max(initial=0))):
-            self._apply_impulses(s, t0, n_sub, dts)
-            self._launch_substep(s, alive_slots)
+        if self.device == "cpu" and not self._alive.all():
+            alive_slots = np.repeat(self._alive, np.diff(self.offsets))
+        n_max = int(n_sub.max(initial=0))
+        if self.graph_unrolled is not None and not self._pending:  # no impulse to apply between substeps
+            whole, rest = divmod(n_max, GRAPH_SUBSTEPS)
+            for _ in range(whole):
+                wp.capture_launch(self.graph_unrolled)
+            for _ in range(rest):
+                wp.capture_launch(self.graph)
+        else:
+            for s in range(n_max):
+                self._apply_impulses(s, t0, n_sub, dts)
+                self._launch_substep(s, alive_slots)
+        self.substeps_total += n_max
         self.time_s = t0 + frame_dt_s
         self.state.time_s = self.time_s
         self.frame += 1
         for r, run in enumerate(self._runs):
             run.substeps_last_frame = int(n_sub[r])
-            if run.alive:
+            if self._alive[r]:
                 run.dt = float(dts[r])
         v_limits = np.where(n_sub > 0, self.dx / np.where(dts > 0, dts, 1.0), FAR)
         self._stats = self._reduce(v_limits)
@@ -437,19 +494,23 @@ class BatchedSolver:
         if not bad.any():  # the usual frame: one test instead of one per run
             return
         for r, run in enumerate(self._runs):
-            counts_all = bad[r]
-            if not run.alive or not counts_all.any():
-                continue
-            ids = np.nonzero(counts_all)[0]
-            counts = counts_all[ids]
-            worst = int(ids[np.argmax(counts)])
-            names = ", ".join(f"'{MATERIAL_NAMES[int(m)]}' ({int(c)})" for m, c in zip(ids, counts))
-            run.alive = False
-            run.error = ComputationError(
-                f"simulation diverged at frame {self.frame} (t={self.time_s:.4g} s): material "
-                f"'{MATERIAL_NAMES[worst]}' particles ({int(counts.sum())} of {run.stop - run.start}: {names}) "
-                f"reached non-finite or runaway velocity/deformation (limit {v_limits[r]:.3g} m/s, "
-                f"‖F‖ ≤ {MAX_STRETCH:g}); lower solver.cfl or check E/nu/density")
+            if run.alive and bad[r].any():
+                self._diverged(r, bad[r], self.frame, self.time_s, float(v_limits[r]))
+
+    def _diverged(self, r: int, counts_all: np.ndarray, frame: int, time_s: float, v_limit: float) -> None:
+        """Stop run r: `counts_all` of its particles per material failed the guard at the end of
+        frame `frame` (time_s), against velocity limit `v_limit` m/s."""
+        run = self._runs[r]
+        ids = np.nonzero(counts_all)[0]
+        counts = counts_all[ids]
+        worst = int(ids[np.argmax(counts)])
+        names = ", ".join(f"'{MATERIAL_NAMES[int(m)]}' ({int(c)})" for m, c in zip(ids, counts))
+        self._stop(r)
+        run.error = ComputationError(
+            f"simulation diverged at frame {frame} (t={time_s:.4g} s): material "
+            f"'{MATERIAL_NAMES[worst]}' particles ({int(counts.sum())} of {run.stop - run.start}: {names}) "
+            f"reached non-finite or runaway velocity/deformation (limit {v_limit:.3g} m/s, "
+            f"‖F‖ ≤ {MAX_STRETCH:g}); lower solver.cfl or check E/nu/density")
 
     # ------------------------------------------------------------------ results
     def _host_positions(self) -> np.ndarray:
@@ -462,9 +523,10 @@ class BatchedSolver:
         x = self._host_positions()
         return x.copy() if r is None else x[self.offsets[r]:self.offsets[r + 1]].copy()
 
-    def positions_at(self, slots: np.ndarray) -> np.ndarray:
-        """Positions (len(slots),3) float32 world m of the given particle slots (all runs' numbering)."""
-        return self._host_positions()[slots]
+    def positions_at(self, slots: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Positions (len(slots),3) float32 world m of the given particle slots (all runs' numbering),
+        written into `out` when given."""
+        return np.take(self._host_positions(), slots, axis=0, out=out)
 
     def deformation_gradients(self, r: int) -> np.ndarray:
         """F (N_r,3,3) float32 of run r."""
@@ -477,14 +539,20 @@ class BatchedSolver:
 
 def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: float, device: str = "auto",
                    fill: bool = False, quiet: bool = True, graph: bool | None = None,
-                   points: np.ndarray | None = None) -> list:
+                   points: np.ndarray | None = None, stats: dict | None = None,
+                   device_loop: bool | None = None) -> list:
     """`sim.run.simulate` for several (cloud, scene) models at once, on one shared grid shape:
     one Trajectory per model, or the ComputationError that stopped that model's run (the others
     still finish). Raises InputError for unusable input (as simulate does). `points`: indices of
     the Gaussians to return (Trajectory.x is then (T, len(points), 3)): diagnose needs only the
     tracked ones, and mapping every Gaussian back to input coordinates each frame costs more
-    host time than a batched GPU frame."""
+    host time than a batched GPU frame. `stats` (optional) receives where the time went: set-up
+    (particles and solver) and frame-loop seconds, substeps launched, seconds waited in syncs.
+    `device_loop`: once no impulse is pending, run the remaining frames with nothing read back
+    until the end (device_frames.py; None: DEVICE_LOOP; where the device cannot, step_frame)."""
     from .run import Trajectory, build_particles, simulate
+
+    start = time.perf_counter()
 
     if frames < 1:
         raise InputError(f"frames must be ≥ 1, got {frames}")
@@ -498,21 +566,36 @@ def simulate_batch(models: list[tuple[SplatCloud, Scene]], frames: int, fps: flo
     pick = [np.arange(n) if points is None else np.asarray(points, np.int64) for n in ns]
     x0_in = [cloud.means[k].astype(np.float32) for (cloud, _), k in zip(models, pick)]
     x0_world = [p.x[k].astype(np.float64) for (p, _), k in zip(built, pick)]
-    xs = [np.empty((frames, len(k), 3), np.float32) for k in pick]
     slots = np.concatenate([int(solver.offsets[r]) + k for r, k in enumerate(pick)])
     ends = np.cumsum([len(k) for k in pick])
+    picked = np.empty((frames, len(slots), 3), np.float32)  # every run's picked points, run after run
+    loop_start = time.perf_counter()
     steps = range(1, frames) if quiet else progress(range(1, frames), desc=f"simulate ×{len(models)}",
                                                     total=frames - 1, unit="frame")
-    # per frame only a copy of the picked world positions (the GPU idles while the host works
-    # between frames); mapped to input coordinates once at the end
+    # per frame only ONE gather of the picked world positions (the GPU idles while the host works
+    # between frames; a stopped run's rows go stale, unused: it returns its error or runs alone);
+    # split per run and mapped to input coordinates once at the end
+    if device_loop is None:
+        device_loop = DEVICE_LOOP
+    if device_loop:
+        from .device_frames import device_loop_available
+
+        device_loop = device_loop_available(solver.device)
     for i in steps:
+        if device_loop and not solver._pending:
+            from .device_frames import DeviceFrames
+
+            picked[i:] = DeviceFrames(solver, 1.0 / fps, slots, frames).run(frames - i)
+            break
         solver.step_frame(1.0 / fps)
-        x_pick = solver.positions_at(slots)
-        for r, alive in enumerate(solver.alive):
-            if alive:
-                xs[r][i] = x_pick[ends[r] - len(pick[r]):ends[r]]
+        solver.positions_at(slots, out=picked[i])
         if not solver.alive.any():
             break
+    xs = [np.ascontiguousarray(picked[:, e - len(k):e]) for k, e in zip(pick, ends)]
+    del picked
+    if stats is not None:
+        stats.update(setup_s=loop_start - start, loop_s=time.perf_counter() - loop_start,
+                     substeps=solver.substeps_total, wait_s=solver.wait_s, frames=solver.frame)
     out: list = []
     for r, (_, tf) in enumerate(built):
         err = solver.errors[r]

@@ -210,3 +210,107 @@ def run_stats(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), F: wp.arra
             wave = wave_c[p] * wp.sqrt(wp.exp(snow_hardening * wp.max(0.0, 1.0 - Jp[p])))
             if wave > 0.0:
                 wp.atomic_max(maxima, r, 1, wave)
+
+
+# ---------------------------------------------------------------------------------- frames on the device
+# A whole frame with nothing read back (BatchedSolver.frames_on_device): the substep plan that
+# BatchedSolver._plan makes on the host, made here from the last frame's statistics in the same
+# float64 operations; the substep loop as a device-side while loop; the divergence guard; the
+# tracked points copied into a history. Every per-frame figure the host needs comes back once, at
+# the end. One thread walks the K runs in order (K ≤ 64: nothing to parallelise).
+
+
+@wp.kernel
+def plan_frame(maxima: wp.array2d(dtype=float), alive: wp.array(dtype=wp.int32),
+               c_static: wp.array(dtype=wp.float64), has_snow: wp.array(dtype=wp.int32),
+               accel_dt: wp.array(dtype=wp.float64), frame_dt: wp.float64, cfl_dx: wp.float64,
+               vcfl_dx: wp.float64, dx: wp.float64, max_sub: int, far: float,
+               n_sub: wp.array(dtype=wp.int32), dt_run: wp.array(dtype=float), dt_run64: wp.array(dtype=wp.float64),
+               v_limit: wp.array(dtype=float), v_limit64: wp.array(dtype=wp.float64),
+               over_budget: wp.array(dtype=wp.int32), last_dt: wp.array(dtype=wp.float64),
+               substep: wp.array(dtype=wp.int32), n_max: wp.array(dtype=wp.int32), cond: wp.array(dtype=wp.int32),
+               total: wp.array(dtype=wp.int32)):
+    """BatchedSolver._plan for every run (accel_dt = accel · frame_dt, cfl_dx = cfl · dx and
+    vcfl_dx = velocity_cfl · dx computed on the host, as there), then the frame's dt, velocity limit,
+    substep counter and loop condition (n_max > 0); `total` counts the substeps launched."""
+    top = int(0)
+    zero = wp.float64(0.0)
+    for r in range(alive.shape[0]):
+        n = int(0)
+        if alive[r] != 0:
+            c = c_static[r]
+            if has_snow[r] != 0:
+                c = wp.max(c, wp.float64(maxima[r, 1]))
+            n_elastic = wp.float64(1.0)
+            if c != zero:
+                dt = cfl_dx / c
+                if wp.isfinite(dt):
+                    n_elastic = wp.ceil(frame_dt / dt)
+            if n_elastic > wp.float64(max_sub):
+                alive[r] = 0  # over the budget: the caller runs it alone
+                over_budget[r] = 1
+            else:
+                v_bound = wp.float64(maxima[r, 0]) + accel_dt[r]
+                n_velocity = wp.ceil(frame_dt * v_bound / vcfl_dx)
+                n = int(wp.min(wp.max(wp.max(wp.float64(1.0), n_elastic), n_velocity), wp.float64(max_sub)))
+        n_sub[r] = n
+        if n > 0:
+            dts = frame_dt / wp.float64(n)
+            dt_run[r] = float(dts)
+            dt_run64[r] = dts
+            limit = dx / dts
+            v_limit[r] = float(limit)
+            v_limit64[r] = limit
+            last_dt[r] = dts
+        else:
+            dt_run[r] = 0.0
+            dt_run64[r] = zero
+            v_limit[r] = far
+            v_limit64[r] = wp.float64(far)
+        top = wp.max(top, n)
+    substep[0] = 0
+    n_max[0] = top
+    cond[0] = wp.where(top > 0, 1, 0)
+    total[0] = total[0] + top
+
+
+@wp.kernel
+def next_substep(substep: wp.array(dtype=wp.int32), n_max: wp.array(dtype=wp.int32), cond: wp.array(dtype=wp.int32)):
+    """substep += 1; the loop goes on while substep < n_max."""
+    s = substep[0] + 1
+    substep[0] = s
+    cond[0] = wp.where(s < n_max[0], 1, 0)
+
+
+@wp.kernel
+def guard_frame(bad: wp.array2d(dtype=wp.int32), alive: wp.array(dtype=wp.int32), frame: wp.array(dtype=wp.int32),
+                v_limit64: wp.array(dtype=wp.float64), err_frame: wp.array(dtype=wp.int32),
+                err_counts: wp.array2d(dtype=wp.int32), err_limit: wp.array(dtype=wp.float64)):
+    """BatchedSolver._guard: a live run with particles failing the guard stops; the frame number
+    (after this frame), its counts per material and its velocity limit are kept for the message."""
+    for r in range(alive.shape[0]):
+        if alive[r] != 0:
+            total = int(0)
+            for m in range(bad.shape[1]):
+                total += bad[r, m]
+            if total > 0:
+                alive[r] = 0
+                err_frame[r] = frame[0] + 1
+                err_limit[r] = v_limit64[r]
+                for m in range(bad.shape[1]):
+                    err_counts[r, m] = bad[r, m]
+
+
+@wp.kernel
+def record_points(x: wp.array(dtype=wp.vec3), slots: wp.array(dtype=wp.int32), frame: wp.array(dtype=wp.int32),
+                  history: wp.array2d(dtype=wp.vec3)):
+    """history[frame + 1, j] = x[slots[j]] (the frame being finished; rows are frames)."""
+    j = wp.tid()
+    history[frame[0] + 1, j] = x[slots[j]]
+
+
+@wp.kernel
+def end_frame(frame: wp.array(dtype=wp.int32), frame_start: wp.array(dtype=wp.float64), frame_dt: wp.float64):
+    """frame += 1; the next frame starts frame_dt later (the host's time_s + frame_dt, in float64)."""
+    frame[0] = frame[0] + 1
+    frame_start[0] = frame_start[0] + frame_dt
