@@ -133,11 +133,11 @@ def test_perturbations_do_what_they_say():
 
 @pytest.mark.parametrize("name", ["books", "fruit"])
 def test_new_categories_keep_their_classes_under_capture_artefacts(name):
-    """Two of the sixteen everyday categories the shipped checkpoint classifies right although it never
-    trained on them (held-out accuracy books 1.00, fruit 0.99; docs/model_card.md): degree-3
+    """Two of the sixteen everyday categories (held-out accuracy of the shipped checkpoint: books and fruit
+    1.00; docs/model_card.md): degree-3
     ‖f_rest‖ = 0.5, capture-like opacities, 5 % floaters and a 30° tilt each keep ≥ 95 % of the clean
-    prediction's classes. (The paper-class objects: tests/test_model_real_confidence.py. Categories it
-    gets wrong, e.g. guitars, are a guess and not stable: benchmarks/bench_robustness.py.)"""
+    prediction's classes. (The paper-class objects: tests/test_model_real_confidence.py; every category:
+    benchmarks/bench_robustness.py.)"""
     from pixie_gs.dataset.assemble import build_object
     from pixie_gs.dataset.generate import object_seed
     from pixie_gs.dataset.labels import load_class_table
@@ -172,19 +172,21 @@ def test_untrained_channels_are_held_as_in_training():
 
 
 def test_view_dependent_colour_leaves_the_shipped_checkpoints_classes_and_confidence():
-    """The shipped checkpoint trained on degree-0 splats (its sh_energy statistics are 0): a glass bottle
-    with degree-3 ‖f_rest‖ = 0.5 — the case that flipped 99 % of its classes and zeroed its confidence
-    (docs/model_card.md) — now keeps the clean prediction's classes and confidence exactly, since the
-    DC colour, the only other place f_rest could enter, is unchanged."""
+    """A glass bottle with degree-3 ‖f_rest‖ = 0.5 — the case that flipped 99 % of an older checkpoint's
+    classes and zeroed its confidence (docs/model_card.md) — keeps ≥ 95 % of the clean prediction's
+    classes, and its confidence does not collapse (at least half the clean object's). The shipped
+    checkpoint trained on objects with and without view-dependent colour (its sh_energy channel varied)."""
     from pixie_gs.dataset.assemble import build_object
     from pixie_gs.dataset.generate import object_seed
     from pixie_gs.dataset.labels import load_class_table
+    from pixie_gs.model.checkpoint import load_checkpoint
+    from pixie_gs.model.predict import untrained_channels
 
+    assert "sh_energy" not in untrained_channels(load_checkpoint(None, "cpu").meta)
     table = load_class_table()
     index = list(table).index("glass_bottles")
     clean, _ = build_object(table["glass_bottles"], object_seed(77, "test", index), 4000)
     base, base_conf = predict(clean)
     classes, conf = predict(with_f_rest(clean, 0.5, 3, np.random.default_rng(1)))
-    assert agreement(base, classes) == 1.0
-    np.testing.assert_allclose(conf, base_conf, atol=1e-6)
-    assert base_conf.mean() > 0.05
+    assert agreement(base, classes) >= AGREEMENT_TARGET
+    assert base_conf.mean() > 0.05 and conf.mean() >= 0.5 * base_conf.mean()
