@@ -384,3 +384,17 @@ def test_group_norm_statistics_do_not_cancel():
         got = _group_norm(x, norm)
     assert got.is_contiguous(memory_format=torch.channels_last_3d)
     assert float((got.double() - ref).abs().max()) < 1e-4
+
+
+def test_non_finite_weight_is_named_wherever_it_is(tmp_path):
+    """The finiteness check runs over all weights at once; the error still names the damaged one."""
+    torch.manual_seed(2)
+    model = MaterialUNet(ModelConfig(input_channels=NAMES, base_channels=8, multipliers=[1, 2]))
+    path = tmp_path / "m.pt"
+    save_checkpoint(path, model, SPEC)
+    payload = torch.load(path, weights_only=True)
+    key = list(payload["state_dict"])[-3]
+    payload["state_dict"][key].view(-1)[1:3] = float("inf")
+    torch.save(payload, path)
+    with pytest.raises(InputError, match=f"weight '{key}' holds NaN or inf \\(2 values\\)"):
+        load_checkpoint(path)
