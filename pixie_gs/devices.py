@@ -10,6 +10,20 @@ DEVICE_HELP = "where to compute: cpu, cuda, or auto (cuda when a GPU is present;
 _warp_ready = False
 
 
+def passive_thread_waits() -> None:
+    """Let OpenMP's idle threads sleep instead of spinning (OMP_WAIT_POLICY=PASSIVE), unless the user
+    set a policy. Call before torch is imported: OpenMP reads it once, when torch loads it.
+
+    Why: torch runs each CPU operation on one thread per core, and by default a thread that finishes
+    its share spins until the others catch up. On a machine whose cores also run other work, the
+    spinning thread takes the time slice its partner needs: the U-Net of `pixie annotate` took
+    1.75 CPU s with two spinning threads at load average 3.6 on 2 cores, 0.38 s passive (the same
+    as one thread); with idle cores both still run in parallel."""
+    import os
+
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+
 def resolve_torch_device(name: str = "auto") -> str:
     """'auto' → 'cuda' when torch sees a GPU, else 'cpu'; 'cuda' without a GPU is an error."""
     import torch
