@@ -49,9 +49,9 @@ def make_splat(path: Path, count: int, class_name: str, seed: int) -> None:
 def child(inp: str, out: str, device: str) -> None:
     """Run `pixie annotate IN OUT --device D` in this process with timers around its steps; one JSON line."""
     t0 = time.perf_counter()
-    from pixie_gs.devices import passive_thread_waits
+    from pixie_gs.devices import thread_defaults
 
-    passive_thread_waits()  # as the `pixie` command does before torch loads OpenMP
+    thread_defaults()  # as the `pixie` command does before numpy and torch load their thread pools
     import torch
 
     import pixie_gs.annotate as annotate_mod
@@ -189,9 +189,9 @@ def main() -> int:
     ap.add_argument("--no-brute", action="store_true", help="skip the brute-force baseline (~10 s of CPU)")
     ap.add_argument("--child", nargs=3, metavar=("IN", "OUT", "DEVICE"), help=argparse.SUPPRESS)
     args = ap.parse_args()
-    from pixie_gs.devices import passive_thread_waits
+    from pixie_gs.devices import thread_defaults
 
-    passive_thread_waits()  # this process's field baseline runs torch too: as the `pixie` command does
+    thread_defaults()  # this process's field baseline runs numpy and torch too: as the `pixie` command does
     if args.child:
         child(*args.child)
         return 0

@@ -10,18 +10,27 @@ DEVICE_HELP = "where to compute: cpu, cuda, or auto (cuda when a GPU is present;
 _warp_ready = False
 
 
-def passive_thread_waits() -> None:
-    """Let OpenMP's idle threads sleep instead of spinning (OMP_WAIT_POLICY=PASSIVE), unless the user
-    set a policy. Call before torch is imported: OpenMP reads it once, when torch loads it.
+THREAD_DEFAULTS = {"OMP_WAIT_POLICY": "PASSIVE", "OPENBLAS_NUM_THREADS": "1"}
 
-    Why: torch runs each CPU operation on one thread per core, and by default a thread that finishes
-    its share spins until the others catch up. On a machine whose cores also run other work, the
-    spinning thread takes the time slice its partner needs: the U-Net of `pixie annotate` took
-    1.75 CPU s with two spinning threads at load average 3.6 on 2 cores, 0.38 s passive (the same
-    as one thread); with idle cores both still run in parallel."""
+
+def thread_defaults() -> None:
+    """The `pixie` command's thread-pool settings (THREAD_DEFAULTS), unless the user set them. Call
+    before numpy and torch are imported: their libraries read these once, when they load.
+
+    - OMP_WAIT_POLICY=PASSIVE: torch runs each CPU operation on one OpenMP thread per core, and by
+      default a thread that finishes its share spins until the others catch up. On a machine whose
+      cores also run other work the spinning thread takes the time slice its partner needs: the
+      U-Net of `pixie annotate` took 1.75 CPU s with two spinning threads at load average 3.6 on
+      2 cores, 0.38 s passive (the same as one thread); with idle cores both still run in parallel.
+    - OPENBLAS_NUM_THREADS=1: numpy's and scipy's OpenBLAS on one thread. pixie's numpy matrix
+      products are small (the feature field's (G,10)@(10,K) distances, preparation's 3×3 fits), so a
+      second thread gains nothing on an idle machine and, spinning the same way, costs a lot on a busy
+      one (the field 0.36 → 0.16 CPU s at load average 4.8). torch's own CPU work (MKL, oneDNN) is
+      not affected."""
     import os
 
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    for name, value in THREAD_DEFAULTS.items():
+        os.environ.setdefault(name, value)
 
 
 def resolve_torch_device(name: str = "auto") -> str:

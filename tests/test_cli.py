@@ -83,16 +83,15 @@ def test_no_command_prints_help_and_exits_2(tmp_path):
     assert "demo" in result.stdout and "Exit codes" in result.stdout
 
 
-def test_openmp_threads_wait_passively_unless_the_user_chose(tmp_path):
-    """`pixie` sets OMP_WAIT_POLICY=PASSIVE before torch loads OpenMP (spinning threads steal the time
-    slices their partners need on a busy machine); a policy the user set is kept."""
+def test_thread_pool_defaults_unless_the_user_chose(tmp_path):
+    """`pixie` sets OMP_WAIT_POLICY=PASSIVE and OPENBLAS_NUM_THREADS=1 before numpy or torch loads its
+    thread pools (spinning threads steal the time slices their partners need on a busy machine); a
+    value the user set is kept."""
     probe = ("import os, sys; from pixie_gs.cli.main import main; main(['info', sys.argv[1]]); "
-             "import torch; print(os.environ.get('OMP_WAIT_POLICY'))")
+             "import numpy, torch; print(os.environ.get('OMP_WAIT_POLICY'), os.environ.get('OPENBLAS_NUM_THREADS'))")
     ply = Path(__file__).resolve().parent.parent / "pixie_gs" / "data" / "examples" / "can.ply"
-    for preset, want in ((None, "PASSIVE"), ("ACTIVE", "ACTIVE")):
-        env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
-        if preset:
-            env["OMP_WAIT_POLICY"] = preset
+    for preset, want in (({}, "PASSIVE 1"), ({"OMP_WAIT_POLICY": "ACTIVE", "OPENBLAS_NUM_THREADS": "2"}, "ACTIVE 2")):
+        env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "OPENBLAS_NUM_THREADS")} | preset
         out = subprocess.run([sys.executable, "-c", probe, str(ply)], capture_output=True, text=True, env=env,
                              cwd=tmp_path, check=True).stdout
         assert out.strip().splitlines()[-1] == want

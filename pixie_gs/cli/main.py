@@ -12,7 +12,7 @@ import importlib
 import signal
 import sys
 
-from ..devices import passive_thread_waits
+from ..devices import thread_defaults
 from ..errors import PixieError
 from ..progress import set_quiet
 
@@ -50,7 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    passive_thread_waits()  # before any command imports torch
+    thread_defaults()  # before any command imports numpy or torch
     try:
         from ..prepare.updir import fix_negative_up
 
