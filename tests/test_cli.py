@@ -95,3 +95,21 @@ def test_thread_pool_defaults_unless_the_user_chose(tmp_path):
         out = subprocess.run([sys.executable, "-c", probe, str(ply)], capture_output=True, text=True, env=env,
                              cwd=tmp_path, check=True).stdout
         assert out.strip().splitlines()[-1] == want
+
+
+def test_only_the_pixie_process_skips_its_final_collection(tmp_path):
+    """`main()` run as the process (no argv given) freezes gc at exit (the last collections walked every
+    torch object: ~0.5 s); `main([...])` called by another program leaves the caller's gc alone."""
+    ply = Path(__file__).resolve().parent.parent / "pixie_gs" / "data" / "examples" / "can.ply"
+    probe = ("import atexit, gc, sys\n"
+             "atexit.register(lambda: print('frozen', gc.get_freeze_count() > 0))\n"
+             "from pixie_gs.cli.main import main\n"
+             "if sys.argv[2] == 'process':\n"
+             "    sys.argv = ['pixie', 'info', sys.argv[1]]\n"
+             "    main()\n"
+             "else:\n"
+             "    main(['info', sys.argv[1]])\n")
+    for how, want in (("process", "frozen True"), ("caller", "frozen False")):
+        out = subprocess.run([sys.executable, "-c", probe, str(ply), how], capture_output=True, text=True,
+                             cwd=tmp_path, check=True).stdout
+        assert out.strip().splitlines()[-1] == want

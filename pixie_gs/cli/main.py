@@ -8,6 +8,8 @@ Exit codes: 0 ok, 1 bad input, 2 usage, 3 computation failed, 130 interrupted.
 from __future__ import annotations
 
 import argparse
+import atexit
+import gc
 import importlib
 import signal
 import sys
@@ -51,6 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     thread_defaults()  # before any command imports numpy or torch
+    if argv is None:  # the `pixie` process itself, not a caller's: see skip_final_collection
+        atexit.register(skip_final_collection)
     try:
         from ..prepare.updir import fix_negative_up
 
@@ -93,6 +97,14 @@ def main(argv: list[str] | None = None) -> int:
         remove_live_staging()  # a signal between two statements must not orphan a staging folder
         _restore_sigterm(previous)
     return int(result or 0)
+
+
+def skip_final_collection() -> None:
+    """At the exit of a `pixie` process: move every object to gc's permanent generation, so the
+    interpreter's last collections do not walk them (torch alone holds several hundred thousand:
+    0.5 s of the exit of an annotate at load average 4.5, 0.16 s with this). Streams are still
+    flushed and atexit callbacks run; only cyclic garbage left at exit is not collected."""
+    gc.freeze()
 
 
 class Terminated(KeyboardInterrupt):
