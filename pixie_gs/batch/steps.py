@@ -82,9 +82,10 @@ def read_prepared(path: str | Path, opts: AnnotateOptions, announce: bool = Fals
     return PreparedAsset(cloud, model_cloud, scene)
 
 
-# scipy modules that preparation (k-d tree, convex hull, components), the CPU field (sparse sums) and the
-# transfer (k-d tree) import: ~0.2 s, paid once before the fork instead of in both processes.
-SHARED_MODULES = ("scipy.spatial", "scipy.sparse.csgraph", "scipy.ndimage")
+# What both processes import: scipy.spatial (with scipy.sparse) for preparation's k-d tree and convex hull,
+# the CPU field's sparse sums and the transfer's k-d tree: ~0.2 s, paid once before the fork. (The
+# components' scipy.ndimage / csgraph are the worker's alone.)
+SHARED_MODULES = ("scipy.spatial",)
 IN_ONE_PROCESS = "PIXIE_ANNOTATE_IN_ONE_PROCESS"  # "1": no PreparingAhead worker (comparisons, debugging)
 
 
