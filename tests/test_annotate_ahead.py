@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from fuzz_corpus import vertex_table, write_ply
-from pixie_gs.batch.steps import IN_ONE_PROCESS, AnnotateOptions, PreparingAhead
+from pixie_gs.batch.steps import WORKER_ENV, AnnotateOptions, PreparingAhead
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux") or len(os.sched_getaffinity(0)) < 2,
                                 reason="the worker is forked on Linux with two cores or more")
@@ -23,9 +23,7 @@ EXAMPLE = Path(__file__).resolve().parent.parent / "pixie_gs" / "data" / "exampl
 
 
 def _annotate(args: list, cwd: Path, one_process: bool) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if k != IN_ONE_PROCESS}
-    if one_process:
-        env[IN_ONE_PROCESS] = "1"
+    env = dict(os.environ, **{WORKER_ENV: "0" if one_process else "1"})  # "1": fork even on a busy machine
     return subprocess.run([sys.executable, "-m", "pixie_gs", "annotate", *map(str, args), "--device", "cpu"],
                           cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
 
@@ -95,7 +93,7 @@ def test_signal_stops_the_command_and_its_worker(tmp_path, sig, code):
     table = vertex_table(n=300_000)
     table["x"], table["y"], table["z"] = rng.normal(size=(3, 300_000)).astype(np.float32)
     write_ply(big, table)
-    env = {k: v for k, v in os.environ.items() if k != IN_ONE_PROCESS}
+    env = dict(os.environ, **{WORKER_ENV: "1"})
     proc = subprocess.Popen([sys.executable, "-m", "pixie_gs", "annotate", str(big), str(tmp_path / "o.ply"),
                              "--device", "cpu", "-q"], cwd=tmp_path, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
@@ -111,10 +109,28 @@ def test_signal_stops_the_command_and_its_worker(tmp_path, sig, code):
     assert _workers_of(big.name) == []  # stopped with the command, not when its preparation ends
 
 
-def test_worker_is_not_forked_once_torch_is_loaded(tmp_path):
+def test_worker_is_not_forked_once_torch_is_loaded_or_when_asked_not_to(tmp_path, monkeypatch):
     import torch  # noqa: F401 - loaded, as in this test process
 
+    monkeypatch.setenv(WORKER_ENV, "1")
     assert PreparingAhead.start(EXAMPLE, AnnotateOptions(device="cpu")) is None
+    for mode, forks in (("0", False), ("1", True), ("auto", True)):
+        script = ("import os, sys\n"
+                  "os.getloadavg = lambda: (0.0, 0.0, 0.0)  # an idle machine, for 'auto'\n"
+                  "from pixie_gs.batch.steps import AnnotateOptions, PreparingAhead\n"
+                  "ahead = PreparingAhead.start(sys.argv[1], AnnotateOptions(device='cpu'))\n"
+                  "print(ahead is not None)\n"
+                  "ahead and ahead.result()\n")
+        out = subprocess.run([sys.executable, "-c", script, str(EXAMPLE)], capture_output=True, text=True,
+                             env=dict(os.environ, **{WORKER_ENV: mode}), cwd=tmp_path, timeout=300, check=True)
+        assert [ln for ln in out.stdout.splitlines() if ln in ("True", "False")] == [str(forks)], out.stderr
+    busy = ("import os, sys\n"
+            "os.getloadavg = lambda: (5.0, 5.0, 5.0)\n"
+            "from pixie_gs.batch.steps import AnnotateOptions, PreparingAhead\n"
+            "print(PreparingAhead.start(sys.argv[1], AnnotateOptions(device='cpu')) is None)\n")
+    out = subprocess.run([sys.executable, "-c", busy, str(EXAMPLE)], capture_output=True, text=True,
+                         env=dict(os.environ, **{WORKER_ENV: "auto"}), cwd=tmp_path, timeout=300, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "True"  # busy: in one process
 
 
 def test_closing_early_stops_the_worker(tmp_path):
@@ -130,7 +146,7 @@ def test_closing_early_stops_the_worker(tmp_path):
               "pid = ahead.pid\n"
               "ahead.close()\n"
               "print(pid, os.path.exists(f'/proc/{pid}'))\n")
-    env = {k: v for k, v in os.environ.items() if k != IN_ONE_PROCESS}
+    env = dict(os.environ, **{WORKER_ENV: "1"})
     out = subprocess.run([sys.executable, "-c", script, str(big)], capture_output=True, text=True, env=env,
                          cwd=tmp_path, timeout=300, check=True).stdout.split()
     assert int(out[0]) > 0 and out[1] == "False"

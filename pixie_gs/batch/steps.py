@@ -86,19 +86,21 @@ def read_prepared(path: str | Path, opts: AnnotateOptions, announce: bool = Fals
 # the CPU field's sparse sums and the transfer's k-d tree: ~0.2 s, paid once before the fork. (The
 # components' scipy.ndimage / csgraph are the worker's alone.)
 SHARED_MODULES = ("scipy.spatial",)
-IN_ONE_PROCESS = "PIXIE_ANNOTATE_IN_ONE_PROCESS"  # "1": no PreparingAhead worker (comparisons, debugging)
+WORKER_ENV = "PIXIE_ANNOTATE_WORKER"  # "auto" (default): when a core is idle; "1": whenever possible; "0": never
 
 
 class PreparingAhead:
     """`read_prepared(path, opts, announce=True)` in a forked process while this one loads torch and the model.
 
     A single-file `pixie annotate` spends ~0.9 s importing torch, which reading and preparing the
-    input never need: on Linux, with a second core, the two run side by side. The worker prints
+    input never need: on Linux, with a core to spare, the two run side by side. The worker prints
     what `read_prepared` prints, when it does, and sends the PreparedAsset (or its error) back through
-    a pipe; it never writes a file. Where forking cannot help or is unsafe (not Linux, one core,
-    torch already imported: its thread pools must not be forked; --no-prepare) or the environment
-    sets PIXIE_ANNOTATE_IN_ONE_PROCESS=1, `start` returns None and the caller reads in-process.
-    If the worker dies without an answer, `result` reads in-process."""
+    a pipe; it never writes a file. `start` returns None (the caller reads in-process) where forking
+    is unsafe or pointless (not Linux, one core, torch already imported: its thread pools must not be
+    forked; --no-prepare) and, unless PIXIE_ANNOTATE_WORKER=1, when no core is idle (1-minute load
+    average above the cores − 1): on a busy machine the second process only adds ~0.1–0.2 CPU s of
+    copy-on-write and start-up. PIXIE_ANNOTATE_WORKER=0 never forks. If the worker dies without an
+    answer, `result` reads in-process."""
 
     def __init__(self, pid: int, fd: int, path: str | Path, opts: AnnotateOptions) -> None:
         self.pid, self.fd, self.path, self.opts = pid, fd, path, opts
@@ -109,8 +111,11 @@ class PreparingAhead:
         import os
         import sys
 
-        if (not sys.platform.startswith("linux") or len(os.sched_getaffinity(0)) < 2 or "torch" in sys.modules
-                or opts.no_prepare or os.environ.get(IN_ONE_PROCESS) == "1"):
+        mode = os.environ.get(WORKER_ENV, "auto")
+        cores = len(os.sched_getaffinity(0)) if sys.platform.startswith("linux") else 1
+        if cores < 2 or "torch" in sys.modules or opts.no_prepare or mode == "0":
+            return None
+        if mode != "1" and os.getloadavg()[0] > cores - 1:  # no idle core: one process is cheaper
             return None
         for name in SHARED_MODULES:  # imported once, before the fork: both processes use them
             importlib.import_module(name)
