@@ -130,3 +130,26 @@ def test_torch_is_imported_without_garbage_collections(tmp_path):
         out = subprocess.run([sys.executable, "-c", probe, state], capture_output=True, text=True, cwd=tmp_path,
                              check=True).stdout
         assert out.strip().splitlines()[-1] == want
+
+
+def test_annotate_process_exits_at_once_after_flushing_and_atexit(tmp_path):
+    """A single-file `pixie annotate` process ends with `os._exit` (no interpreter teardown) only after
+    its output is complete, every atexit callback has run and its buffered stdout is flushed."""
+    ply = Path(__file__).resolve().parent.parent / "pixie_gs" / "data" / "examples" / "can.ply"
+    probe = ("import atexit, sys\n"
+             "atexit.register(lambda: print('atexit ran'))\n"
+             "import pixie_gs.cli.main as cli\n"
+             "real_exit = cli.exit_at_once\n"
+             "cli.exit_at_once = lambda code: (print('exiting at once', code), real_exit(code))\n"
+             "sys.argv = ['pixie', 'annotate', sys.argv[1], sys.argv[2], '--device', 'cpu']\n"
+             "sys.exit(cli.main())\n")
+    out = tmp_path / "o.ply"
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # block-buffered stdout, as usual
+    res = subprocess.run([sys.executable, "-c", probe, str(ply), str(out)], capture_output=True, text=True,
+                         cwd=tmp_path, timeout=600, env=env)
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.splitlines()
+    assert lines[-2:] == ["exiting at once 0", "atexit ran"] and any("gaussians" in ln for ln in lines)
+    from pixie_gs.splat import read_splat
+
+    assert len(read_splat(out)) == 11733 and read_splat(out).has("confidence")

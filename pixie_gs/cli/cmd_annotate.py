@@ -83,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
         sel = mid == m
         print(f"{MATERIAL_NAMES.get(int(m), str(m)):<13} {int(sel.sum()):>9} gaussians  E {np.median(E[sel]):.3g} Pa  "
               f"nu {np.median(nu[sel]):.3f}  density {np.median(rho[sel]):.4g} kg/m3")
+    args.exit_at_once = True  # all written and closed: the process may skip the interpreter's teardown (cli/main.py)
     return 0
 
 

@@ -96,7 +96,28 @@ def main(argv: list[str] | None = None) -> int:
 
         remove_live_staging()  # a signal between two statements must not orphan a staging folder
         _restore_sigterm(previous)
+    if argv is None and getattr(args, "exit_at_once", False):
+        exit_at_once(int(result or 0))
     return int(result or 0)
+
+
+def exit_at_once(code: int) -> None:
+    """End the `pixie` process without the interpreter's teardown, once a command has written and
+    closed everything (it sets `args.exit_at_once`; single-file annotate does): atexit callbacks run,
+    standard streams flushed, then `os._exit`. Tearing down torch's modules and C++ statics
+    took 0.1–0.15 s of a ~2 s annotate. Returns (normal exit) while other Python threads run."""
+    import os
+    import threading
+
+    if threading.active_count() > 1:
+        return
+    atexit._run_exitfuncs()  # then the streams, in the interpreter's own order
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # e.g. stdout closed by the reader: what Python's own exit reports
+            code = code or 120
+    os._exit(code)
 
 
 def skip_final_collection() -> None:
