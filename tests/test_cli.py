@@ -5,6 +5,7 @@ Commands run as a user runs them, `python -m pixie_gs ...`, in subprocesses.
 """
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -80,3 +81,75 @@ def test_no_command_prints_help_and_exits_2(tmp_path):
     result = pixie([], tmp_path)
     assert result.returncode == 2
     assert "demo" in result.stdout and "Exit codes" in result.stdout
+
+
+def test_thread_pool_defaults_unless_the_user_chose(tmp_path):
+    """`pixie` sets OMP_WAIT_POLICY=PASSIVE and OPENBLAS_NUM_THREADS=1 before numpy or torch loads its
+    thread pools (spinning threads steal the time slices their partners need on a busy machine); a
+    value the user set is kept."""
+    probe = ("import os, sys; from pixie_gs.cli.main import main; main(['info', sys.argv[1]]); "
+             "import numpy, torch; print(os.environ.get('OMP_WAIT_POLICY'), os.environ.get('OPENBLAS_NUM_THREADS'))")
+    ply = Path(__file__).resolve().parent.parent / "pixie_gs" / "data" / "examples" / "can.ply"
+    for preset, want in (({}, "PASSIVE 1"), ({"OMP_WAIT_POLICY": "ACTIVE", "OPENBLAS_NUM_THREADS": "2"}, "ACTIVE 2")):
+        env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "OPENBLAS_NUM_THREADS")} | preset
+        out = subprocess.run([sys.executable, "-c", probe, str(ply)], capture_output=True, text=True, env=env,
+                             cwd=tmp_path, check=True).stdout
+        assert out.strip().splitlines()[-1] == want
+
+
+def test_only_the_pixie_process_skips_its_final_collection(tmp_path):
+    """`main()` run as the process (no argv given) freezes gc at exit (the last collections walked every
+    torch object: ~0.5 s); `main([...])` called by another program leaves the caller's gc alone."""
+    ply = Path(__file__).resolve().parent.parent / "pixie_gs" / "data" / "examples" / "can.ply"
+    probe = ("import atexit, gc, sys\n"
+             "atexit.register(lambda: print('frozen', gc.get_freeze_count() > 0))\n"
+             "from pixie_gs.cli.main import main\n"
+             "if sys.argv[2] == 'process':\n"
+             "    sys.argv = ['pixie', 'info', sys.argv[1]]\n"
+             "    main()\n"
+             "else:\n"
+             "    main(['info', sys.argv[1]])\n")
+    for how, want in (("process", "frozen True"), ("caller", "frozen False")):
+        out = subprocess.run([sys.executable, "-c", probe, str(ply), how], capture_output=True, text=True,
+                             cwd=tmp_path, check=True).stdout
+        assert out.strip().splitlines()[-1] == want
+
+
+def test_torch_is_imported_without_garbage_collections(tmp_path):
+    """`devices.import_torch` pauses the cyclic collector while torch loads (its collections cost
+    ~0.1 s and free little) and leaves the collector as it found it."""
+    probe = ("import gc, sys\n"
+             "runs = []\n"
+             "gc.callbacks.append(lambda phase, info: runs.append(info['generation']) if phase == 'start' else None)\n"
+             "if sys.argv[1] == 'off':\n"
+             "    gc.disable()\n"
+             "from pixie_gs.devices import import_torch\n"
+             "torch = import_torch()\n"
+             "print(torch.__name__, gc.isenabled(), len(runs), import_torch() is torch)\n")
+    for state, want in (("on", "torch True 0 True"), ("off", "torch False 0 True")):
+        out = subprocess.run([sys.executable, "-c", probe, state], capture_output=True, text=True, cwd=tmp_path,
+                             check=True).stdout
+        assert out.strip().splitlines()[-1] == want
+
+
+def test_annotate_process_exits_at_once_after_flushing_and_atexit(tmp_path):
+    """A single-file `pixie annotate` process ends with `os._exit` (no interpreter teardown) only after
+    its output is complete, every atexit callback has run and its buffered stdout is flushed."""
+    ply = Path(__file__).resolve().parent.parent / "pixie_gs" / "data" / "examples" / "can.ply"
+    probe = ("import atexit, sys\n"
+             "atexit.register(lambda: print('atexit ran'))\n"
+             "import pixie_gs.cli.main as cli\n"
+             "real_exit = cli.exit_at_once\n"
+             "cli.exit_at_once = lambda code: (print('exiting at once', code), real_exit(code))\n"
+             "sys.argv = ['pixie', 'annotate', sys.argv[1], sys.argv[2], '--device', 'cpu']\n"
+             "sys.exit(cli.main())\n")
+    out = tmp_path / "o.ply"
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # block-buffered stdout, as usual
+    res = subprocess.run([sys.executable, "-c", probe, str(ply), str(out)], capture_output=True, text=True,
+                         cwd=tmp_path, timeout=600, env=env)
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.splitlines()
+    assert lines[-2:] == ["exiting at once 0", "atexit ran"] and any("gaussians" in ln for ln in lines)
+    from pixie_gs.splat import read_splat
+
+    assert len(read_splat(out)) == 11733 and read_splat(out).has("confidence")

@@ -325,3 +325,123 @@ def test_annotate_writes_confidence_and_warns_when_unlike_training(monkeypatch, 
     far = ann.annotate_cloud(rod, device="cpu").get("confidence")
     assert far.max() < 1e-3
     assert "treat its materials as a guess" in capsys.readouterr().err
+
+
+def _random_unet(channels: list[str], seed: int = 3) -> MaterialUNet:
+    """A shipped-size network with random weights everywhere (the zero-initialised convolutions too)."""
+    torch.manual_seed(seed)
+    model = MaterialUNet(ModelConfig(input_channels=channels))
+    with torch.no_grad():
+        for module in model.modules():
+            if isinstance(module, torch.nn.Conv3d):
+                torch.nn.init.normal_(module.weight, std=1.0 / math.sqrt(module.weight[0].numel()))
+                torch.nn.init.normal_(module.bias, std=0.3)
+            elif isinstance(module, torch.nn.GroupNorm):
+                torch.nn.init.uniform_(module.weight, 0.5, 1.5)
+                torch.nn.init.normal_(module.bias, std=0.3)
+    return model.eval()
+
+
+def _example_grid(name: str = "tree"):
+    """The 64³ feature grid (1, C, 64, 64, 64) of a shipped example splat and its channel names."""
+    from pixie_gs.field import feature_grid
+    from pixie_gs.splat import read_splat
+
+    path = DEFAULT_CHECKPOINT.parent.parent / "examples" / f"{name}.ply"
+    grid = feature_grid(read_splat(path), 64, [])
+    return torch.as_tensor(grid.values)[None], grid.channels, torch.as_tensor(grid.occupancy)[None]
+
+
+def test_cpu_inference_matches_a_float64_evaluation():
+    """The CPU inference path (`_forward`) computes the network's function to float32 accuracy: on a mostly
+    empty 64³ grid, where a float32 E[x²]−E[x]² GroupNorm is ~1e-2 off, logits stay within 1e-3 of a
+    float64 evaluation and every occupied voxel whose float64 top two classes are apart gets its class."""
+    import copy
+
+    from pixie_gs.model.checkpoint import LoadedModel
+    from pixie_gs.model.predict import _forward
+
+    values, channels, occupied = _example_grid()
+    model = _random_unet(channels)
+    loaded = LoadedModel(model, model.config, FeatureSpec(), {}, "random")
+    logits, physical = _forward(loaded, values, channels)
+    with torch.no_grad():
+        ref_logits, ref_physical = copy.deepcopy(model).double()(values.double())
+    ref_physical = ref_physical.clamp(-1, 1)  # the label ranges of a checkpoint without meta: [-1, 1]
+    assert float((logits.double() - ref_logits).abs().max()) < 1e-3 * float(ref_logits.abs().max())
+    assert float((physical.double() - ref_physical).abs().max()) < 1e-3
+    top2 = ref_logits[:, :BACKGROUND].topk(2, dim=1).values
+    clear = occupied & (top2[:, 0] - top2[:, 1] > 1e-3)
+    same = logits[:, :BACKGROUND].argmax(1) == ref_logits[:, :BACKGROUND].argmax(1)
+    assert bool(same[clear].all()) and int(clear.sum()) > 1000
+
+
+@pytest.mark.parametrize("config,batch,empty", [
+    (dict(), 1, 0.9),  # the shipped shape, mostly empty space
+    (dict(multipliers=[1, 2], res_blocks=2, dropout=0.2), 2, 0.5),  # a batch runs sample by sample
+    (dict(base_channels=8, projector_hidden=12, projector_out=12), 1, 0.0),  # no empty voxel at all
+    (dict(base_channels=8), 1, 1.0),  # nothing but empty space
+])
+def test_fast_cpu_forward_is_the_module_forward(config, batch, empty):
+    """`infer.fast_forward` (oneDNN convolutions, distinct-row projector, in-place ops) = `model(x)`."""
+    from pixie_gs.model.infer import fast_forward, fast_path_applies
+
+    model = MaterialUNet(ModelConfig(input_channels=NAMES, **config))
+    with torch.no_grad():
+        for p in model.parameters():
+            p.normal_(0.0, 0.3)
+    model.eval()
+    gen = torch.Generator().manual_seed(7)
+    x = torch.randn(batch, len(NAMES), 16, 16, 16, generator=gen)
+    x[torch.rand(batch, 1, 16, 16, 16, generator=gen).expand_as(x) < empty] = 0.0
+    assert fast_path_applies(model, x)
+    with torch.no_grad():
+        ref = copy_double(model)(x.double())
+        logits, physical = fast_forward(model, x)
+        plain = model(x)
+    for got, want, module in zip((logits, physical), ref, plain):
+        assert got.shape == want.shape and got.dtype == torch.float32
+        scale = float(want.abs().max()) + 1e-6
+        assert float((got.double() - want).abs().max()) < 2e-4 * scale  # as close to float64 as the module
+        assert float((module.double() - want).abs().max()) < 2e-4 * scale
+    assert not fast_path_applies(model.train(), x) and not fast_path_applies(model.eval(), x.double())
+
+
+def copy_double(model: MaterialUNet) -> MaterialUNet:
+    """A float64 copy of `model` (the reference the float32 paths are held to)."""
+    import copy
+
+    return copy.deepcopy(model).double()
+
+
+def test_group_norm_statistics_do_not_cancel():
+    """`infer._group_norm` on channels-last data whose mean is large next to its spread (the case where
+    PyTorch's channels-last kernel loses digits) matches a float64 GroupNorm."""
+    from pixie_gs.model.infer import _group_norm
+
+    gen = torch.Generator().manual_seed(0)
+    x = torch.full((1, 16, 64, 64, 64), 8.0)  # empty space: one value, shifted by a bias
+    solid = torch.rand(64, 64, 64, generator=gen) < 0.1
+    x[:, :, solid] += torch.randn(16, int(solid.sum()), generator=gen)
+    x = x.contiguous(memory_format=torch.channels_last_3d)
+    norm = torch.nn.GroupNorm(8, 16).eval()
+    with torch.no_grad():
+        norm.weight.uniform_(0.5, 1.5)
+        ref = torch.nn.functional.group_norm(x.double(), 8, norm.weight.double(), norm.bias.double(), norm.eps)
+        got = _group_norm(x, norm)
+    assert got.is_contiguous(memory_format=torch.channels_last_3d)
+    assert float((got.double() - ref).abs().max()) < 1e-4
+
+
+def test_non_finite_weight_is_named_wherever_it_is(tmp_path):
+    """The finiteness check runs over all weights at once; the error still names the damaged one."""
+    torch.manual_seed(2)
+    model = MaterialUNet(ModelConfig(input_channels=NAMES, base_channels=8, multipliers=[1, 2]))
+    path = tmp_path / "m.pt"
+    save_checkpoint(path, model, SPEC)
+    payload = torch.load(path, weights_only=True)
+    key = list(payload["state_dict"])[-3]
+    payload["state_dict"][key].view(-1)[1:3] = float("inf")
+    torch.save(payload, path)
+    with pytest.raises(InputError, match=f"weight '{key}' holds NaN or inf \\(2 values\\)"):
+        load_checkpoint(path)

@@ -4,11 +4,15 @@ With a folder, a glob or a manifest as IN and a folder as OUT it runs in batch m
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from ..devices import DEVICE_CHOICES, DEVICE_HELP
 from ..batch.command import add_batch_options
 from .cmd_prepare import add_prepare_options
 from .options import add_drop_invalid_option
+
+if TYPE_CHECKING:
+    from ..batch.steps import AnnotateOptions
 
 
 def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.ArgumentParser:
@@ -40,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..atomic import check_distinct_output
     from ..batch.jobs import is_batch_input
-    from ..batch.steps import AnnotateOptions, predict, read_prepared, write_result
+    from ..batch.steps import AnnotateOptions, PreparingAhead, predict, read_prepared, write_result
     from ..errors import InputError
     from ..materials import MATERIAL_NAMES
     from ..progress import stage
@@ -56,7 +60,15 @@ def run(args: argparse.Namespace) -> int:
     check_distinct_output(args.input, args.output, args.force)
     opts = AnnotateOptions.from_args(args)
     opts.validate()
-    asset = read_prepared(args.input, opts, announce=True)
+    ahead = PreparingAhead.start(args.input, opts)  # reads + prepares in a worker while torch loads here
+    if ahead is None:
+        asset = read_prepared(args.input, opts, announce=True)
+    else:
+        with ahead:
+            model_error = _load_model(opts)
+            asset = ahead.result()  # the input's own error first, as when read in-process
+        if model_error is not None:
+            raise model_error
     out = predict(asset, opts)
     if args.rrd:
         from ..viz import log_material_views, recording, send_layout
@@ -71,5 +83,18 @@ def run(args: argparse.Namespace) -> int:
         sel = mid == m
         print(f"{MATERIAL_NAMES.get(int(m), str(m)):<13} {int(sel.sum()):>9} gaussians  E {np.median(E[sel]):.3g} Pa  "
               f"nu {np.median(nu[sel]):.3f}  density {np.median(rho[sel]):.4g} kg/m3")
+    args.exit_at_once = True  # all written and closed: the process may skip the interpreter's teardown (cli/main.py)
     return 0
 
+
+def _load_model(opts: "AnnotateOptions") -> Exception | None:
+    """Import torch and load the checkpoint on the device (`get_model` keeps it for `predict`); the
+    error (a bad checkpoint or device) is returned, to be raised after the input's own errors."""
+    from ..annotate import get_model
+    from ..devices import resolve_torch_device
+
+    try:
+        get_model(opts.checkpoint, resolve_torch_device(opts.device))
+    except Exception as exc:  # noqa: BLE001 - re-raised by the caller
+        return exc
+    return None

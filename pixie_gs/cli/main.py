@@ -8,10 +8,13 @@ Exit codes: 0 ok, 1 bad input, 2 usage, 3 computation failed, 130 interrupted.
 from __future__ import annotations
 
 import argparse
+import atexit
+import gc
 import importlib
 import signal
 import sys
 
+from ..devices import thread_defaults
 from ..errors import PixieError
 from ..progress import set_quiet
 
@@ -49,6 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    thread_defaults()  # before any command imports numpy or torch
+    if argv is None:  # the `pixie` process itself, not a caller's: see skip_final_collection
+        atexit.register(skip_final_collection)
     try:
         from ..prepare.updir import fix_negative_up
 
@@ -90,7 +96,36 @@ def main(argv: list[str] | None = None) -> int:
 
         remove_live_staging()  # a signal between two statements must not orphan a staging folder
         _restore_sigterm(previous)
+    if argv is None and getattr(args, "exit_at_once", False):
+        exit_at_once(int(result or 0))
     return int(result or 0)
+
+
+def exit_at_once(code: int) -> None:
+    """End the `pixie` process without the interpreter's teardown, once a command has written and
+    closed everything (it sets `args.exit_at_once`; single-file annotate does): atexit callbacks run,
+    standard streams flushed, then `os._exit`. Tearing down torch's modules and C++ statics
+    took 0.1–0.15 s of a ~2 s annotate. Returns (normal exit) while other Python threads run."""
+    import os
+    import threading
+
+    if threading.active_count() > 1:
+        return
+    atexit._run_exitfuncs()  # then the streams, in the interpreter's own order
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # e.g. stdout closed by the reader: what Python's own exit reports
+            code = code or 120
+    os._exit(code)
+
+
+def skip_final_collection() -> None:
+    """At the exit of a `pixie` process: move every object to gc's permanent generation, so the
+    interpreter's last collections do not walk them (torch alone holds several hundred thousand:
+    0.5 s of the exit of an annotate at load average 4.5, 0.16 s with this). Streams are still
+    flushed and atexit callbacks run; only cyclic garbage left at exit is not collected."""
+    gc.freeze()
 
 
 class Terminated(KeyboardInterrupt):

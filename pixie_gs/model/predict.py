@@ -147,17 +147,22 @@ def _forward(loaded: LoadedModel, values, channel_names: list[str]):
     """Raw (logits, physical clamped to the label ranges) of full grid tensors."""
     import torch
 
-    held = [channel_names.index(n) for n in untrained_channels(loaded.meta) if n in channel_names]
+    from .infer import fast_forward, fast_path_applies
+
+    x = select_inputs(values, channel_names, loaded.config.input_channels)  # a copy: `values` stays as given
+    untrained = set(untrained_channels(loaded.meta))
+    held = [i for i, name in enumerate(loaded.config.input_channels) if name in untrained]
     if held:
-        values = values.clone()
-        values[:, held] = 0
-    x = select_inputs(values, channel_names, loaded.config.input_channels)
+        x[:, held] = 0
     with torch.inference_mode():
         if x.device.type == "cuda":
             with torch.autocast("cuda", dtype=torch.bfloat16):
                 logits, physical = loaded.model(x)
-        else:
-            logits, physical = loaded.model(x.contiguous(memory_format=torch.channels_last_3d))
+        elif fast_path_applies(loaded.model, x):  # the same function with less work (model/infer.py)
+            logits, physical = fast_forward(loaded.model, x)
+        else:  # contiguous (NCDHW): the channels-last GroupNorm's float32 E[x²]−E[x]² cancels on mostly
+            # empty grids (~1e-2 off in the logits on real captures, classes flipped at near-ties)
+            logits, physical = loaded.model(x.contiguous())
     lo, hi = normalised_bounds(loaded.meta)
     shape = (1, 3) + (1,) * (physical.dim() - 2)
     lo_t = torch.as_tensor(lo, device=physical.device).view(shape)
