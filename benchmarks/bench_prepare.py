@@ -122,13 +122,14 @@ def asset_path(real: Path, work: Path, entry: dict) -> Path:
 
 def pictures(real: Path, work: Path, out_dir: Path, annotated: Path | None, size: int = 240) -> None:
     """docs/real/prepare_<asset>.png: raw (the file's +z up) | seen with the estimated up | coloured
-    by role (orange object, grey background, green ground, red floater) | annotated materials (from
-    `annotated`/<file>), seen with the same up, framed on the object."""
+    by role (orange object, grey background, green ground, red floater) | annotated material class and
+    log10 E (viridis over the dataset's range, from `annotated`/<file>), seen with the same up, framed
+    on the object."""
     from pixie_gs.gsrender import Gaussians, orbit_cameras, render_many, render_modes, to_uint8
     from pixie_gs.prepare import ROLE_OBJECT, prepare_cloud
     from pixie_gs.render import contact_sheet, save_png
     from pixie_gs.splat import read_splat
-    from pixie_gs.viz import material_colors
+    from pixie_gs.viz import log_e_colors, material_colors
 
     for e in json.loads((real / "expectations.json").read_text()):
         stem = Path(e["file"]).stem
@@ -148,8 +149,9 @@ def pictures(real: Path, work: Path, out_dir: Path, annotated: Path | None, size
         ann = annotated / e["file"] if annotated is not None else None
         if ann is not None and ann.exists():
             a = read_splat(ann)
-            images.append(to_uint8(render_many(g, cam_up, [material_colors(a.get("material_id"))])[0]))
-            labels.append("annotated (material)")
+            mid, E_pa, _, _ = a.get_materials()
+            images += [to_uint8(im) for im in render_many(g, cam_up, [material_colors(mid), log_e_colors(E_pa)])]
+            labels += ["annotated: material", f"log10 E (median {np.median(E_pa):.2g} Pa)"]
         save_png(contact_sheet(images, labels, columns=len(images)), out_dir / f"prepare_{stem}.png")
         print(f"wrote {out_dir / f'prepare_{stem}.png'}", flush=True)
 
