@@ -83,6 +83,13 @@ def test_no_command_prints_help_and_exits_2(tmp_path):
     assert "demo" in result.stdout and "Exit codes" in result.stdout
 
 
+def probe_last_line(probe: str, args: list[str], cwd: Path, env: dict | None = None) -> str:
+    """The last line a `python -c probe ARGS` process prints (it must exit 0)."""
+    out = subprocess.run([sys.executable, "-c", probe, *args], capture_output=True, text=True, env=env,
+                         cwd=cwd, check=True).stdout
+    return out.strip().splitlines()[-1]
+
+
 def test_thread_pool_defaults_unless_the_user_chose(tmp_path):
     """`pixie` sets OMP_WAIT_POLICY=PASSIVE and OPENBLAS_NUM_THREADS=1 before numpy or torch loads its
     thread pools (spinning threads steal the time slices their partners need on a busy machine); a
@@ -92,9 +99,7 @@ def test_thread_pool_defaults_unless_the_user_chose(tmp_path):
     ply = Path(__file__).resolve().parent.parent / "pixie_gs" / "data" / "examples" / "can.ply"
     for preset, want in (({}, "PASSIVE 1"), ({"OMP_WAIT_POLICY": "ACTIVE", "OPENBLAS_NUM_THREADS": "2"}, "ACTIVE 2")):
         env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "OPENBLAS_NUM_THREADS")} | preset
-        out = subprocess.run([sys.executable, "-c", probe, str(ply)], capture_output=True, text=True, env=env,
-                             cwd=tmp_path, check=True).stdout
-        assert out.strip().splitlines()[-1] == want
+        assert probe_last_line(probe, [str(ply)], tmp_path, env) == want
 
 
 def test_only_the_pixie_process_skips_its_final_collection(tmp_path):
@@ -110,9 +115,7 @@ def test_only_the_pixie_process_skips_its_final_collection(tmp_path):
              "else:\n"
              "    main(['info', sys.argv[1]])\n")
     for how, want in (("process", "frozen True"), ("caller", "frozen False")):
-        out = subprocess.run([sys.executable, "-c", probe, str(ply), how], capture_output=True, text=True,
-                             cwd=tmp_path, check=True).stdout
-        assert out.strip().splitlines()[-1] == want
+        assert probe_last_line(probe, [str(ply), how], tmp_path) == want
 
 
 def test_torch_is_imported_without_garbage_collections(tmp_path):
@@ -127,9 +130,7 @@ def test_torch_is_imported_without_garbage_collections(tmp_path):
              "torch = import_torch()\n"
              "print(torch.__name__, gc.isenabled(), len(runs), import_torch() is torch)\n")
     for state, want in (("on", "torch True 0 True"), ("off", "torch False 0 True")):
-        out = subprocess.run([sys.executable, "-c", probe, state], capture_output=True, text=True, cwd=tmp_path,
-                             check=True).stdout
-        assert out.strip().splitlines()[-1] == want
+        assert probe_last_line(probe, [state], tmp_path) == want
 
 
 def test_annotate_process_exits_at_once_after_flushing_and_atexit(tmp_path):
