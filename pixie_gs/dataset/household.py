@@ -282,15 +282,21 @@ def bread(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
 
 @recipe("fruit")
 def fruit(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
-    """One to five pieces of fruit (apple, orange, pear-like), filled, with a small stalk."""
+    """One to five pieces of fruit (apple, orange, pear-like), filled, with a small stalk, each resting
+    on the ground (until this change a piece's centre was at 0.95 × its radius whatever its
+    height, so pieces floated up to 0.1 r above the ground or sank 0.2 r into it, and a pile of
+    several stood on its lowest piece alone with its centre of mass off it: it would roll over)."""
     pieces = []
     n = int(rng.integers(1, 6))
     for k in range(n):
         r = rng.uniform(0.03, 0.05)
-        c = np.array([rng.uniform(-0.08, 0.08) * (k > 0), rng.uniform(-0.08, 0.08) * (k > 0), r * 0.95])
-        m = ellipsoid(c, r * np.array([1.0, 1.0, rng.uniform(0.85, 1.15)]), 2)
+        x, y = rng.uniform(-0.08, 0.08) * (k > 0), rng.uniform(-0.08, 0.08) * (k > 0)
+        squash = rng.uniform(0.85, 1.15)  # vertical semi-axis over r
+        c = np.array([x, y, r * squash])
+        m = ellipsoid(c, r * np.array([1.0, 1.0, squash]), 2)
         pieces.append(Piece("flesh", m, jitter(rng, pick(rng, FRUIT), 0.08), 0.05, fill=True))
-        stalk = tapered_segment(c + np.array([0, 0, r * 0.9]), c + np.array([0, 0, r * 1.25]), 0.003, 0.002, 6)
+        top = c + np.array([0.0, 0.0, r * squash])  # the stalk starts just inside the top (it floated above squat ones)
+        stalk = tapered_segment(top - np.array([0, 0, r * 0.05]), top + np.array([0, 0, r * 0.3]), 0.003, 0.002, 6)
         pieces.append(Piece("flesh", stalk, (0.35, 0.25, 0.12), 0.03))
     return pieces, _round({"pieces": n})
 
