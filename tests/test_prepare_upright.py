@@ -13,7 +13,8 @@ from pixie_gs.dataset.assemble import build_object
 from pixie_gs.dataset.generate import object_seed
 from pixie_gs.dataset.labels import load_class_table
 from pixie_gs.prepare import prepare_cloud
-from pixie_gs.prepare.upright import FEATURES, load_scorer
+from pixie_gs.prepare.upright import FEATURES, candidates, load_scorer, score
+from pixie_gs.splat import SplatCloud
 from upright_match import angle_deg, distance_over_floor, symmetric_error
 
 OBJECTS = 20
@@ -69,8 +70,61 @@ def test_part_labels_break_a_symmetry():
 # ------------------------------------------------------------------------------- the estimate
 def test_scorer_file_matches_the_code():
     raw = load_scorer()
-    assert raw["W1"].shape[0] == len(FEATURES) and raw["mean"].shape == (len(FEATURES),)
+    assert raw["W1"].shape[-2] == len(FEATURES) and raw["mean"].shape == (len(FEATURES),)
     assert np.isfinite(raw["W1"]).all() and (raw["std"] > 0).all()
+
+
+def test_an_ensemble_scores_the_mean_of_its_members():
+    """upright.score of stacked members equals the mean of each member scored alone."""
+    rng = np.random.default_rng(0)
+    members = [{"W1": rng.normal(size=(6, 4)), "b1": rng.normal(size=4), "w2": rng.normal(size=4),
+                "b2": float(rng.normal())} for _ in range(3)]
+    base = {"mean": rng.normal(size=6), "std": rng.uniform(0.5, 2.0, 6)}
+    x = rng.normal(size=(9, 6))
+    stacked = {**base, **{k: np.stack([np.asarray(m[k]) for m in members]) for k in ("W1", "b1", "w2", "b2")}}
+    alone = [np.tanh(((x - base["mean"]) / base["std"]) @ m["W1"] + m["b1"]) @ m["w2"] + m["b2"] for m in members]
+    assert np.allclose(score(x, stacked), np.mean(alone, axis=0))
+    assert np.allclose(score(x, {**base, **members[0]}), alone[0])
+
+
+def _views(cloud, ups):
+    """Descriptors (dict name → value) of the candidates of `cloud` nearest each of `ups`."""
+    cands = candidates(cloud.means.astype(np.float64), cloud.opacities, cloud.rotations, cloud.log_scales, 0.002,
+                       colours=cloud.rgb())
+    out = []
+    for u in ups:
+        best = max(cands, key=lambda c: float(c.up @ np.asarray(u)))
+        assert float(best.up @ np.asarray(u)) > 0.99
+        out.append(dict(zip(FEATURES, best.features)))
+    return out
+
+
+def test_view_features_see_a_stalk_on_top_and_its_colour():
+    """A green ball with a thin brown stalk on top (a fruit): seen upright, the highest 1 % and 3 % of
+    its extent are narrow and browner than the object, the lowest are wider and as green; upside
+    down, the reverse."""
+    ball = mesh_to_splat(trimesh.creation.icosphere(3, 0.05), 3000, np.random.default_rng(2),
+                         rgb=np.array([0.3, 0.7, 0.2], np.float32), fill=True, n_fill=1000)
+    rod = trimesh.creation.cylinder(0.003, 0.02)
+    rod.apply_translation([0.0, 0.0, 0.058])
+    stalk = mesh_to_splat(rod, 150, np.random.default_rng(3), rgb=np.array([0.4, 0.25, 0.1], np.float32))
+    up, down = _views(SplatCloud.concatenate([ball, stalk]), ([0.0, 0.0, 1.0], [0.0, 0.0, -1.0]))
+    for view, top, bottom in ((up, "top", "bottom"), (down, "bottom", "top")):  # the stalk's end, the ball's end
+        assert view[f"width_{top}1"] < 0.1 < 0.15 < view[f"width_{bottom}1"]  # 3 mm stalk vs a cap of the ball
+        assert view[f"width_{top}3"] < 0.1 < 0.3 < view[f"width_{bottom}3"]
+        assert view[f"green_{top}5"] < -0.2 and abs(view[f"green_{bottom}5"]) < 0.05  # brown above, green below
+        assert view[f"red_{top}5"] > 0.05 and abs(view[f"red_{bottom}5"]) < 0.05
+
+
+def test_view_features_see_an_open_mouth():
+    """A cup (a shell closed at its foot, open at its mouth): the lowest band's outline is covered,
+    the highest band is a ring; upside down, the reverse."""
+    from pixie_gs.dataset.primitives import lathe
+
+    cup = mesh_to_splat(lathe(np.array([0.04, 0.045, 0.05]), np.array([0.0, 0.05, 0.1]), 32, True, False), 4000,
+                        np.random.default_rng(4))
+    up, down = _views(cup, ([0.0, 0.0, 1.0], [0.0, 0.0, -1.0]))
+    assert up["cover_bottom"] > 1.5 * up["cover_top"] and down["cover_top"] > 1.5 * down["cover_bottom"]
 
 
 def test_up_of_test_seed_objects_under_random_rotations():
