@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from pixie_gs.cli.main import main
 from pixie_gs.dataset.generate import SPLITS, class_for_index, object_seed
@@ -368,3 +369,63 @@ def test_the_support_check_tells_a_leaning_box_from_a_standing_one():
     assert resting_on_support(points)
     tipped = points @ trimesh.transformations.rotation_matrix(np.radians(60), [0, 1, 0])[:3, :3].T
     assert not resting_on_support(tipped)
+
+
+def _ends(points: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Pose statistics seen with `up` (a unit vector): Gaussian share in the lowest and the highest
+    5 % of the height, and the centroid's height over the height."""
+    h = points @ up
+    t = (h - h.min()) / np.ptp(h)
+    return np.array([np.mean(t < 0.05), np.mean(t > 0.95), t.mean()])
+
+
+def _lopsided(built: list[np.ndarray], turned: list[np.ndarray]) -> np.ndarray:
+    """Per statistic of _ends, whether built minus turned has one sign in ≤ 20 % or ≥ 80 % of the
+    objects (a sign test: for 30 objects of one law, P ≈ 0.0014)."""
+    d = np.array(built) - np.array(turned)
+    share = np.mean(d > 0, axis=0)
+    return (share <= 0.2) | (share >= 0.8)
+
+
+def _objects(name: str, keep, count: int = 30) -> list[tuple[np.ndarray, dict]]:
+    from pixie_gs.dataset.assemble import build_object
+
+    out, i = [], 0
+    while len(out) < count:
+        cloud, record = build_object(TABLE[name], object_seed(0, "train", 26 * i + ALL_CLASSES.index(name)), 1500)
+        if keep(record["shape"]):
+            out.append((cloud.means.astype(np.float64), record))
+        i += 1
+    return out
+
+
+@pytest.mark.parametrize("name, keep", [("books", lambda s: not s["upright"]), ("picture_frames", lambda s: True)])
+def test_equal_law_ups_are_resting_poses_the_law_cannot_tell_apart(name, keep):
+    """The generator declares equal-law ups (record shape `equal_law_ups`; the up benchmark counts
+    an estimate at one as right): a stack of books upside down, a frame turned a quarter in its
+    plane. Each must be a pose the object rests in on its own support, and seen from it the object
+    must look like one seen as built: over 30 objects, no end statistic (_ends) is lopsided."""
+    from upright_match import equal_law_ups
+
+    built, turned = [], []
+    for points, record in _objects(name, keep):
+        ups = equal_law_ups(record, np.eye(3))
+        assert ups, record["shape"]
+        for u in ups:
+            R = Rotation.align_vectors([[0.0, 0.0, 1.0]], [u])[0].as_matrix()
+            assert resting_on_support(points @ R.T), (name, record["shape"], u)
+        built.append(_ends(points, np.array([0.0, 0.0, 1.0])))
+        turned.append(_ends(points, ups[0]))
+    assert not _lopsided(built, turned).any(), (name, np.mean(np.array(built) - np.array(turned) > 0, axis=0))
+
+
+def test_the_equal_law_check_catches_a_false_claim():
+    """The same check on a claim that would be false: a row of upright books turned upside down (its
+    books stand on a common base under a ragged top) is told apart by its end statistics, and the
+    row declares no equal-law up."""
+    built, turned = [], []
+    for points, record in _objects("books", lambda s: s["upright"]):
+        assert record["shape"]["equal_law_ups"] == []
+        built.append(_ends(points, np.array([0.0, 0.0, 1.0])))
+        turned.append(_ends(points, np.array([0.0, 0.0, -1.0])))
+    assert _lopsided(built, turned).any()

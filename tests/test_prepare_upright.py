@@ -15,7 +15,7 @@ from pixie_gs.dataset.labels import load_class_table
 from pixie_gs.prepare import prepare_cloud
 from pixie_gs.prepare.upright import FEATURES, candidates, load_scorer, score
 from pixie_gs.splat import SplatCloud
-from upright_match import angle_deg, distance_over_floor, symmetric_error
+from upright_match import angle_deg, distance_over_floor, law_error, symmetric_error
 
 OBJECTS = 20
 GAUSSIANS = 5000
@@ -65,6 +65,21 @@ def test_part_labels_break_a_symmetry():
     labels = (cloud.means[:, 2] > 0).astype(np.int32)
     assert symmetric_error(cloud.means, labels, np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, 1.0]))[1] is False
     assert symmetric_error(cloud.means, labels, np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]))[1] is False
+
+
+def test_an_equal_law_up_counts_only_where_declared():
+    """A 0.5 × 0.4 × 0.3 box with +x declared an equal-law up: an estimate 7° off +x is 7° off (an
+    equal-law up used); one along +y (not declared, not a symmetry) stays 90° off; with nothing
+    declared, +x is 90° off too."""
+    cloud = mesh_to_splat(trimesh.creation.box([0.5, 0.4, 0.3]), 4000, np.random.default_rng(0))
+    labels = np.zeros(len(cloud), np.int32)
+    z, x = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    near_x = Rotation.from_euler("y", -7.0, degrees=True).apply(x)
+    error, used = law_error(cloud.means, labels, near_x, z, [x])
+    assert used and error == pytest.approx(7.0, abs=0.01)
+    error, used = law_error(cloud.means, labels, np.array([0.0, 1.0, 0.0]), z, [x])
+    assert not used and error == pytest.approx(90.0, abs=0.01)
+    assert law_error(cloud.means, labels, near_x, z, [])[0] == pytest.approx(angle_deg(near_x, z), abs=0.01)
 
 
 # ------------------------------------------------------------------------------- the estimate

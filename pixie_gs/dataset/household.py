@@ -111,7 +111,11 @@ def guitar(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
 
 @recipe("picture_frame")
 def picture_frame(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
-    """Upright wooden frame 0.2–1 m with a picture (paper/canvas) inside; some stand on a foot."""
+    """Upright wooden frame 0.2–1 m wide and high (drawn alike) with a picture (paper/canvas) inside.
+
+    `equal_law_ups` (recipe frame, before yaw and scale): the ups under which a frame is as likely a
+    draw of this recipe as standing as built — a quarter turn in its plane swaps width and height,
+    which are drawn from the same range, so no shape cue can say portrait from landscape."""
     w, h = rng.uniform(0.2, 1.0), rng.uniform(0.2, 1.0)
     b, d = rng.uniform(0.02, 0.07), rng.uniform(0.015, 0.04)
     wood = jitter(rng, pick(rng, WOODS + PAINTED_WOOD), 0.06)
@@ -122,7 +126,7 @@ def picture_frame(rng: np.random.Generator, parts: set) -> tuple[list[Piece], di
     if "picture" in parts:
         pic = box(np.array([w - 2 * b, 0.004, h - 2 * b]), np.array([0, 0, h / 2]))
         pieces.append(Piece("picture", pic, jitter(rng, tuple(rng.uniform(0.1, 0.9, 3)), 0.1), 0.15))
-    return pieces, _round({"width_m": w, "height_m": h, "bar_m": b})
+    return pieces, _round({"width_m": w, "height_m": h, "bar_m": b, "equal_law_ups": [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]]})
 
 
 # ------------------------------------------------------------------------------------ ceramic, glass, bottles
@@ -315,7 +319,11 @@ def carton(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
 
 @recipe("books")
 def books(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
-    """A stack or a row of 1–8 books: paper block with a coloured cover (each filled)."""
+    """A stack or a row of 1–8 books: paper block with a coloured cover (each filled).
+
+    `equal_law_ups` (recipe frame): a stack turned upside down is another stack drawn with the same
+    probability (sizes independent, offsets symmetric, each book the same both ways up), so its
+    shape cannot say which end was the bottom; a row stands on the common base of its books."""
     pieces = []
     upright = rng.random() < 0.5
     pos = 0.0
@@ -332,4 +340,4 @@ def books(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
         pieces.append(Piece("paper", box(ext, centre), cover, 0.04, fill=True))
         pages = box(ext * np.array([0.96 if upright else 1.01, 1.01, 0.96 if not upright else 1.0]) * 0.99, centre)
         pieces.append(Piece("paper", pages, jitter(rng, pick(rng, PAPER), 0.03), 0.03, weight=0.3))
-    return pieces, _round({"books": n, "upright": upright})
+    return pieces, _round({"books": n, "upright": upright, "equal_law_ups": [] if upright else [[0.0, 0.0, -1.0]]})
