@@ -2,9 +2,11 @@
 
 Objects of every class from the dataset's TRAIN seeds (object_seed(SEED, "train", i)), 4,000–20,000
 Gaussians, each turned by a random rotation, go through the same steps as `prepare` (floater
-mask, robust spacing) and give their up candidates and descriptors (shape and colour); a
-candidate within 10° of the true up (the rotation applied to +z) is a right answer, and for an
-object with none that close (a duck on its round bottom) its nearest candidate within 20°.
+mask, robust spacing) and give their up candidates and descriptors (shape, colour contrast of the ends); a candidate within 10°
+of the true up (the rotation applied to +z) or of one of the generator's equal-law ups (a stack of
+books upside down, a frame turned a quarter in its plane: as likely a draw as the built pose, so
+teaching only the built one teaches a coin toss) is a right answer, and for an object with none
+that close (a duck on its round bottom) its nearest candidate within 20° of the truth.
 Objects the generator laid off their base (a can or bottle on its side: a quarter of cans, a fifth
 of bottles) are left out of the fit: their shape alone cannot say they are not standing, and
 teaching both makes every tall cylinder a coin toss. `--members` one-hidden-layer perceptrons
@@ -27,14 +29,17 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # tests/upright_match.py
+
 RIGHT_DEG = 10.0
 NEAR_DEG = 20.0
 SEED = 0
 
 
 def one_object(split: str, i: int, seed: int = SEED) -> dict:
-    """Object `i` of `split`: class, candidate ups (K,3), descriptors (K,F), true up (3,), and
-    whether the generator laid it off its base (a can or bottle lying on its side). Its Gaussian
+    """Object `i` of `split`: class, candidate ups (K,3), descriptors (K,F), true up (3,), its
+    equal-law ups (list of (3,): tests/upright_match.equal_law_ups) and whether the generator laid
+    it off its base (a can or bottle lying on its side). Its Gaussian
     count and rotation come from its own generator ([seed, split, i]), so objects can be built in
     any order or in parallel."""
     from scipy.spatial.transform import Rotation
@@ -44,6 +49,7 @@ def one_object(split: str, i: int, seed: int = SEED) -> dict:
     from pixie_gs.dataset.labels import load_class_table
     from pixie_gs.prepare.density import floater_mask, robust_spacing
     from pixie_gs.prepare.upright import candidates
+    from upright_match import equal_law_ups
 
     table = load_class_table()
     names = sorted(table)
@@ -61,7 +67,7 @@ def one_object(split: str, i: int, seed: int = SEED) -> dict:
                        colours=cloud.rgb()[keep])
     return {"name": name, "ups": np.stack([c.up for c in cands]),
             "features": np.stack([c.features for c in cands]), "truth": R @ np.array([0.0, 0.0, 1.0]),
-            "off_base": bool(record["shape"].get("lying"))}
+            "equal": equal_law_ups(record, R), "off_base": bool(record["shape"].get("lying"))}
 
 
 def _one(args: tuple[str, int]) -> dict:
@@ -84,8 +90,9 @@ def object_candidates(split: str, count: int, workers: int = 1) -> list[dict]:
 
 def pack(objs: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(features (B,K,F) zero-padded, candidate mask (B,K), right-answer mask (B,K)). Right: within
-    RIGHT_DEG of the truth; for an object with none that close (a bush on its root, a duck on its
-    round bottom: no candidate is exact), its nearest candidate when within NEAR_DEG."""
+    RIGHT_DEG of the truth or of an equal-law up; for an object with none that close (a bush on its
+    root, a duck on its round bottom: no candidate is exact), its nearest candidate to the truth
+    when within NEAR_DEG."""
     k = max(len(o["ups"]) for o in objs)
     f = objs[0]["features"].shape[1]
     X = np.zeros((len(objs), k, f))
@@ -96,6 +103,8 @@ def pack(objs: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         X[i, :n], M[i, :n] = o["features"], True
         cos = o["ups"] @ o["truth"]
         Y[i, :n] = cos > np.cos(np.radians(RIGHT_DEG))
+        for u in o.get("equal", []):
+            Y[i, :n] |= o["ups"] @ u > np.cos(np.radians(RIGHT_DEG))
         if not Y[i].any() and cos.max() > np.cos(np.radians(NEAR_DEG)):
             Y[i, int(np.argmax(cos))] = True
     return X, M, Y
@@ -126,13 +135,14 @@ def fit(X: np.ndarray, M: np.ndarray, Y: np.ndarray, hidden: int, decay: float, 
 
 
 def evaluate(objs: list[dict], model: dict) -> np.ndarray:
-    """Angle (degrees) between the winning candidate and the truth, per object."""
+    """Angle (degrees) between the winning candidate and the truth or its nearest equal-law up, per
+    object."""
     from pixie_gs.prepare.upright import score
 
     errs = []
     for o in objs:
         best = o["ups"][int(np.argmax(score(o["features"], model)))]
-        errs.append(np.degrees(np.arccos(np.clip(best @ o["truth"], -1, 1))))
+        errs.append(min(np.degrees(np.arccos(np.clip(best @ u, -1, 1))) for u in [o["truth"], *o.get("equal", [])]))
     return np.array(errs)
 
 

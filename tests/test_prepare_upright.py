@@ -3,6 +3,8 @@ symmetry-aware error that geometry decides (tests/upright_match.py), and that ju
 analytic shapes."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -114,10 +116,10 @@ def _views(cloud, ups):
     return out
 
 
-def test_view_features_see_a_stalk_on_top_and_its_colour():
+def test_view_features_see_a_stalk_on_top_and_its_contrast():
     """A green ball with a thin brown stalk on top (a fruit): seen upright, the highest 1 % and 3 % of
-    its extent are narrow and browner than the object, the lowest are wider and as green; upside
-    down, the reverse."""
+    its extent are narrow and its highest 5 % differs in colour from the object, the lowest are wider
+    and of the object's colour; upside down, the reverse."""
     ball = mesh_to_splat(trimesh.creation.icosphere(3, 0.05), 3000, np.random.default_rng(2),
                          rgb=np.array([0.3, 0.7, 0.2], np.float32), fill=True, n_fill=1000)
     rod = trimesh.creation.cylinder(0.003, 0.02)
@@ -127,8 +129,7 @@ def test_view_features_see_a_stalk_on_top_and_its_colour():
     for view, top, bottom in ((up, "top", "bottom"), (down, "bottom", "top")):  # the stalk's end, the ball's end
         assert view[f"width_{top}1"] < 0.1 < 0.15 < view[f"width_{bottom}1"]  # 3 mm stalk vs a cap of the ball
         assert view[f"width_{top}3"] < 0.1 < 0.3 < view[f"width_{bottom}3"]
-        assert view[f"green_{top}5"] < -0.2 and abs(view[f"green_{bottom}5"]) < 0.05  # brown above, green below
-        assert view[f"red_{top}5"] > 0.05 and abs(view[f"red_{bottom}5"]) < 0.05
+        assert view[f"contrast_{top}5"] > 0.2 > 0.05 > view[f"contrast_{bottom}5"]  # brown above, green below
 
 
 def test_view_features_see_an_open_mouth():
@@ -162,3 +163,29 @@ def test_up_of_test_seed_objects_under_random_rotations():
     errors = np.array(errors)
     assert np.median(errors) <= 5.0, (np.round(errors, 1), np.round(raw, 1))
     assert np.mean(errors <= 20.0) >= 0.8, (np.round(errors, 1), np.round(raw, 1))
+
+
+REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real"
+
+
+@pytest.mark.skipif(not (REAL / "expectations.json").exists(), reason="../shared/real not present")
+@pytest.mark.parametrize("stem", ["Duck", "WaterBottle", "room_vase", "room_plant"])
+def test_real_meshes_from_their_shape_alone(stem, tmp_path):
+    """The glTF meshes of ../shared/real converted with `pixie convert` defaults, their declared up
+    hidden: the scorer, trained on generated objects only, reads each within 20° of the up a person
+    reads (expectations.json). A scorer with colour cues of the ends read WaterBottle and room_vase
+    on their side (90°, 86°): it had learned the generator's one-colour-per-part palette.
+    growing_pla is left out: its 181 m ground plane decides it, not the scorer."""
+    import json
+
+    from pixie_gs.cli.main import main
+    from pixie_gs.splat import read_splat
+
+    entry = next(e for e in json.loads((REAL / "expectations.json").read_text()) if Path(e["file"]).stem == stem)
+    out = tmp_path / f"{stem}.ply"
+    assert main(["convert", "-q", str(REAL / "orig" / f"{stem}.glb"), str(out)]) == 0
+    cloud = read_splat(out)
+    cloud.comments = []
+    _, scene = prepare_cloud(cloud)
+    assert scene.up_method.startswith("object shape"), scene.up_method
+    assert angle_deg(scene.up, entry["up"]) <= 20.0, (stem, scene.up)

@@ -15,8 +15,9 @@ mesh, a generated object) gets its up from:
    lateral symmetry, mass share near the bottom and the top, the mass profile along the height
    (sixths), how many vertical columns reach the base and the top (`column_ends`), the support,
    base area and floor columns relative to the object's best candidate, and (upright_view) the
-   mass by height × ring around the axis, the colour of the ends, whether the ends are closed
-   and how thin they are (`FEATURES`);
+   mass by height × ring around the axis, how far the colour of the ends is from the object's
+   (a distance, not a colour: the generator's palette is not the world's), whether the ends are
+   closed and how thin they are (`FEATURES`);
 3. a **scorer**: the mean of a few one-hidden-layer perceptrons (numpy) over the standardised
    descriptors; the candidates of one object compete through a softmax. The weights live in
    pixie_gs/data/upright_scorer.json, trained by scripts/train_upright.py on the dataset's TRAIN
