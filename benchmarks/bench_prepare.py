@@ -25,28 +25,33 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # tes
 def generated_up_errors(count: int, n_gaussians: int = 20000) -> list[dict]:
     """Per TEST-seed object (classes round-robin, a random rotation each): class, raw up error (°),
     symmetry-aware error (tests/upright_match.py: 0 when the object put upright by the estimate is
-    the same shape as put upright by the truth), whether it was counted so, method, confidence."""
+    the same shape as put upright by the truth), whether it was counted so, the error up to the
+    generator's equal-law turns (upright_match.law_error: a stack of books upside down, a frame
+    turned a quarter in its plane) and whether one was used, method, confidence."""
     from scipy.spatial.transform import Rotation
 
     from pixie_gs.dataset.assemble import build_object
     from pixie_gs.dataset.generate import object_seed
     from pixie_gs.dataset.labels import load_class_table
     from pixie_gs.prepare import prepare_cloud
-    from upright_match import angle_deg, symmetric_error
+    from upright_match import angle_deg, equal_law_ups, law_error, symmetric_error
 
     table = load_class_table()
     names = sorted(table)
     out = []
     for i in range(count):
         name = names[i % len(names)]
-        cloud, _ = build_object(table[name], object_seed(11, "test", i), n_gaussians)
+        cloud, record = build_object(table[name], object_seed(11, "test", i), n_gaussians)
         R = Rotation.random(random_state=i).as_matrix()
         cloud.means = (cloud.means.astype(np.float64) @ R.T).astype(np.float32)
         cloud.set_covariances(R @ cloud.covariances() @ R.T)
         _, scene = prepare_cloud(cloud)
         truth = R @ [0, 0, 1]
         sym, counted = symmetric_error(cloud.means, cloud.get("part_id"), np.asarray(scene.up), truth)
+        law, turned = law_error(cloud.means, cloud.get("part_id"), np.asarray(scene.up), truth,
+                                equal_law_ups(record, R))
         out.append({"class": name, "raw": angle_deg(scene.up, truth), "sym": sym, "symmetric": counted,
+                    "law": law, "equal_law": turned,
                     "method": scene.up_method, "confidence": scene.up_confidence, "index": i})
     return out
 
@@ -189,7 +194,7 @@ def main() -> int:
             print(f"real: up within 10° on {ok} of {len(rows)} assets")
     if args.objects:
         rows = generated_up_errors(args.objects, args.gaussians)
-        for key, label in (("raw", "raw"), ("sym", "symmetry-aware")):
+        for key, label in (("raw", "raw"), ("sym", "symmetry-aware"), ("law", "symmetry-aware, equal-law turns")):
             e = np.array([r[key] for r in rows])
             print(f"generated ({label}): {len(e)} TEST-seed objects at {args.gaussians} Gaussians, up error median "
                   f"{np.median(e):.1f}°, worst {e.max():.1f}°, ≤ 20° on {np.mean(e <= 20) * 100:.0f} %, "
@@ -197,14 +202,18 @@ def main() -> int:
         sym = [r for r in rows if r["symmetric"]]
         print(f"  counted as symmetric equivalents (error 0): {len(sym)}: "
               + ", ".join(f"{r['class']}#{r['index']} (raw {r['raw']:.0f}°)" for r in sym))
+        law = [r for r in rows if r["equal_law"]]
+        print(f"  counted at an equal-law turn of the truth (the generator's law unchanged by it): {len(law)}: "
+              + ", ".join(f"{r['class']}#{r['index']} (symmetry-aware {r['sym']:.0f}°)" for r in law))
         for name in sorted({r["class"] for r in rows}):
             v = np.array([r["raw"] for r in rows if r["class"] == name])
             w = np.array([r["sym"] for r in rows if r["class"] == name])
+            q = np.array([r["law"] for r in rows if r["class"] == name])
             print(f"  {name:18s} raw median {np.median(v):6.1f}° worst {v.max():6.1f}° | "
-                  f"symmetry-aware median {np.median(w):6.1f}° worst {w.max():6.1f}°")
+                  f"symmetry-aware median {np.median(w):6.1f}° worst {w.max():6.1f}° | equal-law worst {q.max():6.1f}°")
         if args.verbose:
             for r in rows:
-                print(f"  #{r['index']:3d} {r['class']:18s} raw {r['raw']:6.1f}° sym {r['sym']:6.1f}° "
+                print(f"  #{r['index']:3d} {r['class']:18s} raw {r['raw']:6.1f}° sym {r['sym']:6.1f}° law {r['law']:6.1f}° "
                       f"conf {r['confidence']:.2f} {r['method']}")
     return 0
 

@@ -114,3 +114,29 @@ def symmetric_error(points: np.ndarray, labels: np.ndarray, est_up: np.ndarray, 
     if angle_deg(est_up, nearest) < raw and _same_shape(points, labels, nearest, true_up):
         return angle_deg(est_up, nearest), True
     return raw, False
+
+
+def equal_law_ups(record: dict, rotation: np.ndarray) -> list[np.ndarray]:
+    """The generator's own equal-law ups of an object (record["shape"]["equal_law_ups"], recipe
+    frame: ups under which the object is as likely a draw of its recipe as standing as built, e.g. a
+    stack of books upside down), turned by the object's yaw and then by `rotation` (3,3) into the
+    frame the truth is given in. None declared: []."""
+    c, s = np.cos(record["yaw_rad"]), np.sin(record["yaw_rad"])
+    yaw = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return [np.asarray(rotation) @ yaw @ np.asarray(u, np.float64) for u in record["shape"].get("equal_law_ups", [])]
+
+
+def law_error(points: np.ndarray, labels: np.ndarray, est_up: np.ndarray, true_up: np.ndarray,
+              equal_ups: "list[np.ndarray]") -> tuple[float, bool]:
+    """(error in degrees, whether an equal-law up was used): symmetric_error against the truth, or
+    against one of `equal_ups` (equal_law_ups) when that is smaller. Why: where the generator's law
+    is unchanged by a turn, the shape carries no evidence for the built pose over the turned one
+    (any estimator is right half the time at best), so the built pose is no truer than the turned."""
+    best, _ = symmetric_error(points, labels, est_up, true_up)
+    used = False
+    for u in equal_ups:
+        if angle_deg(est_up, u) < best:  # symmetric_error ≤ the raw angle: no other up can do better
+            e, _ = symmetric_error(points, labels, est_up, u)
+            if e < best:
+                best, used = e, True
+    return best, used

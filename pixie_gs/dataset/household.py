@@ -111,7 +111,11 @@ def guitar(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
 
 @recipe("picture_frame")
 def picture_frame(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
-    """Upright wooden frame 0.2–1 m with a picture (paper/canvas) inside; some stand on a foot."""
+    """Upright wooden frame 0.2–1 m wide and high (drawn alike) with a picture (paper/canvas) inside.
+
+    `equal_law_ups` (recipe frame, before yaw and scale): the ups under which a frame is as likely a
+    draw of this recipe as standing as built — a quarter turn in its plane swaps width and height,
+    which are drawn from the same range, so no shape cue can say portrait from landscape."""
     w, h = rng.uniform(0.2, 1.0), rng.uniform(0.2, 1.0)
     b, d = rng.uniform(0.02, 0.07), rng.uniform(0.015, 0.04)
     wood = jitter(rng, pick(rng, WOODS + PAINTED_WOOD), 0.06)
@@ -122,7 +126,7 @@ def picture_frame(rng: np.random.Generator, parts: set) -> tuple[list[Piece], di
     if "picture" in parts:
         pic = box(np.array([w - 2 * b, 0.004, h - 2 * b]), np.array([0, 0, h / 2]))
         pieces.append(Piece("picture", pic, jitter(rng, tuple(rng.uniform(0.1, 0.9, 3)), 0.1), 0.15))
-    return pieces, _round({"width_m": w, "height_m": h, "bar_m": b})
+    return pieces, _round({"width_m": w, "height_m": h, "bar_m": b, "equal_law_ups": [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]]})
 
 
 # ------------------------------------------------------------------------------------ ceramic, glass, bottles
@@ -213,7 +217,12 @@ def plastic_toy(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict
 
 @recipe("cushion")
 def cushion(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
-    """Fabric cushion or pillow 0.3–0.7 m (filled, puffy), lying or leaning; sometimes a folded blanket."""
+    """Fabric cushion or pillow 0.3–0.7 m (filled, puffy), lying flat.
+
+    No cushion leans: until this change 30 % stood tilted 46–75° on one edge, a pose that needs a
+    wall or a sofa back the object does not include (its centre of mass is not above that edge, so
+    it falls flat; tests/test_generate.py checks every class rests on its own support). The draws
+    of the old lean are kept, so every other cushion is the same as before."""
     a, b = rng.uniform(0.15, 0.35), rng.uniform(0.15, 0.35)
     c = rng.uniform(0.05, 0.12)
     fabric = jitter(rng, pick(rng, FABRIC), 0.06)
@@ -222,11 +231,9 @@ def cushion(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
     v = np.sign(v) * np.abs(v) ** 0.6  # squarer than an ellipsoid
     v *= np.array([a, b, c])
     m = trimesh.Trimesh(v + np.array([0, 0, c]), m.faces.copy(), process=False)
-    lean = rng.random() < 0.3
-    if lean:
-        m.apply_transform(_rot([0, 1, 0], rng.uniform(0.8, 1.3), (0, 0, 0)))
-        m.apply_translation([0, 0, -m.vertices[:, 2].min()])
-    return [Piece("fabric", m, fabric, 0.06, fill=True)], _round({"half_size_m": [a, b, c], "leaning": lean})
+    if rng.random() < 0.3:  # the old lean's draws (see the docstring)
+        rng.uniform(0.8, 1.3)
+    return [Piece("fabric", m, fabric, 0.06, fill=True)], _round({"half_size_m": [a, b, c]})
 
 
 @recipe("stone")
@@ -279,15 +286,21 @@ def bread(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
 
 @recipe("fruit")
 def fruit(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
-    """One to five pieces of fruit (apple, orange, pear-like), filled, with a small stalk."""
+    """One to five pieces of fruit (apple, orange, pear-like), filled, with a small stalk, each resting
+    on the ground (until this change a piece's centre was at 0.95 × its radius whatever its
+    height, so pieces floated up to 0.1 r above the ground or sank 0.2 r into it, and a pile of
+    several stood on its lowest piece alone with its centre of mass off it: it would roll over)."""
     pieces = []
     n = int(rng.integers(1, 6))
     for k in range(n):
         r = rng.uniform(0.03, 0.05)
-        c = np.array([rng.uniform(-0.08, 0.08) * (k > 0), rng.uniform(-0.08, 0.08) * (k > 0), r * 0.95])
-        m = ellipsoid(c, r * np.array([1.0, 1.0, rng.uniform(0.85, 1.15)]), 2)
+        x, y = rng.uniform(-0.08, 0.08) * (k > 0), rng.uniform(-0.08, 0.08) * (k > 0)
+        squash = rng.uniform(0.85, 1.15)  # vertical semi-axis over r
+        c = np.array([x, y, r * squash])
+        m = ellipsoid(c, r * np.array([1.0, 1.0, squash]), 2)
         pieces.append(Piece("flesh", m, jitter(rng, pick(rng, FRUIT), 0.08), 0.05, fill=True))
-        stalk = tapered_segment(c + np.array([0, 0, r * 0.9]), c + np.array([0, 0, r * 1.25]), 0.003, 0.002, 6)
+        top = c + np.array([0.0, 0.0, r * squash])  # the stalk starts just inside the top (it floated above squat ones)
+        stalk = tapered_segment(top - np.array([0, 0, r * 0.05]), top + np.array([0, 0, r * 0.3]), 0.003, 0.002, 6)
         pieces.append(Piece("flesh", stalk, (0.35, 0.25, 0.12), 0.03))
     return pieces, _round({"pieces": n})
 
@@ -306,7 +319,11 @@ def carton(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
 
 @recipe("books")
 def books(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
-    """A stack or a row of 1–8 books: paper block with a coloured cover (each filled)."""
+    """A stack or a row of 1–8 books: paper block with a coloured cover (each filled).
+
+    `equal_law_ups` (recipe frame): a stack turned upside down is another stack drawn with the same
+    probability (sizes independent, offsets symmetric, each book the same both ways up), so its
+    shape cannot say which end was the bottom; a row stands on the common base of its books."""
     pieces = []
     upright = rng.random() < 0.5
     pos = 0.0
@@ -323,4 +340,4 @@ def books(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
         pieces.append(Piece("paper", box(ext, centre), cover, 0.04, fill=True))
         pages = box(ext * np.array([0.96 if upright else 1.01, 1.01, 0.96 if not upright else 1.0]) * 0.99, centre)
         pieces.append(Piece("paper", pages, jitter(rng, pick(rng, PAPER), 0.03), 0.03, weight=0.3))
-    return pieces, _round({"books": n, "upright": upright})
+    return pieces, _round({"books": n, "upright": upright, "equal_law_ups": [] if upright else [[0.0, 0.0, -1.0]]})

@@ -250,17 +250,56 @@ def flowers_in_vase(rng: np.random.Generator, parts: set) -> tuple[list[Piece], 
                            "mixed_colours": mixed})
 
 
+BALANCE_ROUNDS = 3  # shrub: turn-and-replant rounds (the centre of mass stays within ~0.1° after three)
+
+
+def surface_centroid(pieces: list[Piece]) -> np.ndarray:
+    """Centroid (3,) of the pieces' surfaces weighted by area × piece weight: where the centroid of
+    the object's Gaussians lands (assemble.allocate_counts shares them out by area × weight)."""
+    total, moment = 0.0, np.zeros(3)
+    for piece in pieces:
+        tri = piece.mesh.triangles
+        area = piece.mesh.area_faces * piece.weight
+        total += float(area.sum())
+        moment += (tri.mean(axis=1) * area[:, None]).sum(axis=0)
+    return moment / max(total, 1e-30)
+
+
+def balance_turn(pieces: list[Piece], foot: np.ndarray) -> np.ndarray:
+    """4×4 turn about `foot` (3,), the centre of what the pieces stand on, that puts their centre
+    of mass (surface_centroid) straight above it. Why: a thing with no fixed part (a free-standing
+    bush) stays put only when its centre of mass is above its support."""
+    lean = _unit(surface_centroid(pieces) - np.asarray(foot, float))
+    axis = np.cross(lean, [0.0, 0.0, 1.0])
+    if np.linalg.norm(axis) < 1e-9:
+        return np.eye(4)
+    return trimesh.transformations.rotation_matrix(float(np.arctan2(np.linalg.norm(axis), lean[2])), _unit(axis), foot)
+
+
+def planted(start: np.ndarray, end: np.ndarray, z: float) -> np.ndarray:
+    """The foot of a stem from `start` to `end` moved along the stem to height `z` (a stem that
+    rises less than 1 in 5 keeps its foot)."""
+    d = end - start
+    if d[2] < 0.2 * np.linalg.norm(d):
+        return start
+    return start + d * ((z - start[2]) / d[2])
+
+
 @recipe("shrub")
 def shrub(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
-    """Free-standing bush 0.5–1.3 m: thick stems from the base, thin twigs, foliage clumps."""
+    """Free-standing bush 0.5–1.3 m: thick stems from the base, thin twigs, foliage clumps, turned
+    about its base so it balances (balance_turn) and its stems planted again: a bush has no fixed part and its stems start
+    within a few centimetres of each other, so grown straight up 90 % of them had their centre of
+    mass outside their support and would fall over (docs/dataset.md)."""
     size = rng.uniform(0.5, 1.3)
     n_stems = int(rng.integers(3, 8))
-    stems, twigs, foliage = [], [], []
+    stems, twigs, foliage, axes = [], [], [], []
     for _ in range(n_stems):
         d = _unit(np.array([rng.normal(0, 0.7), rng.normal(0, 0.7), 1.0]))
         length = size * rng.uniform(0.35, 0.55)
         start = np.array([rng.normal(0, size * 0.03), rng.normal(0, size * 0.03), -0.01])
         end = start + d * length
+        axes.append((start, end))
         stems.append(tapered_segment(start, end, size * 0.018, size * 0.01, 7))
         for _k in range(int(rng.integers(3, 6))):
             s = start + d * length * rng.uniform(0.35, 1.0)
@@ -274,7 +313,22 @@ def shrub(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
     pieces = [Piece("stems", concatenate(stems), jitter(rng, pick(rng, BARK)), 0.05, weight=2.0),
               Piece("twigs", concatenate(twigs), jitter(rng, (0.50, 0.33, 0.22)), 0.05, weight=3.0),
               Piece("foliage", concatenate(foliage), jitter(rng, pick(rng, LEAF_GREENS), 0.1), 0.08)]
-    return pieces, _round({"size_m": size, "stems": n_stems, "foliage_blobs": len(foliage)})
+    turned = np.eye(3)
+    for _ in range(BALANCE_ROUNDS):  # turn, plant the stems again, again (the centre of mass moves a little)
+        T = balance_turn(pieces, np.mean([a for a, _ in axes], axis=0))
+        turned = T[:3, :3] @ turned
+        for piece in pieces[1:]:
+            piece.mesh.apply_transform(T)
+        axes = [(T[:3, :3] @ a + T[:3, 3], T[:3, :3] @ b + T[:3, 3]) for a, b in axes]
+        # the ground: z = 0, or lower where foliage hanging on the low side reaches below it; the
+        # stems go down to it (1 cm deep), so they carry the bush and foliage only touches
+        ground = min(0.0, min(float(np.asarray(p.mesh.vertices)[:, 2].min()) for p in pieces[1:]))
+        axes = [(planted(a, b, ground - 0.01), b) for a, b in axes]
+        pieces[0].mesh = concatenate([tapered_segment(a, b, size * 0.018, size * 0.01, 7) for a, b in axes])
+    for piece in pieces:
+        piece.mesh.apply_translation([0.0, 0.0, -ground])
+    turn = float(np.degrees(np.arccos(np.clip(turned[2, 2], -1.0, 1.0))))
+    return pieces, _round({"size_m": size, "stems": n_stems, "foliage_blobs": len(foliage), "balance_deg": turn})
 
 
 @recipe("grass_patch")

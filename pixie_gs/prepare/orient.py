@@ -72,9 +72,10 @@ def sharpness_sign(points: np.ndarray, log_scales: np.ndarray, u: np.ndarray) ->
 
 
 def estimate_orientation(points: np.ndarray, alphas: np.ndarray, rotations: np.ndarray, log_scales: np.ndarray,
-                         spacing: float, seed: int = 0) -> Orientation:
+                         spacing: float, seed: int = 0, colours: "np.ndarray | None" = None) -> Orientation:
     """Up of a cloud (floaters removed): points (N,3), alphas (N,), rotations (N,4) w,x,y,z,
-    log_scales (N,3), spacing (file units). See the module docstring."""
+    log_scales (N,3), spacing (file units), colours (N,3) in [0, 1] or None (used by the object's
+    own shape cues only). See the module docstring."""
     rng = np.random.default_rng(seed)
     n = len(points)
     pick = rng.choice(n, SAMPLE, replace=False) if n > SAMPLE else np.arange(n)
@@ -94,7 +95,8 @@ def estimate_orientation(points: np.ndarray, alphas: np.ndarray, rotations: np.n
     floor = _floor(p[opaque], w[opaque], rotations[pick][opaque], ls[opaque], tol, rng)
     if floor is not None:
         return Orientation(floor, 1.0, "floor plane, content above it")
-    shape = estimate_upright(p, a, rotations[pick], ls, spacing, seed=seed)
+    shape = estimate_upright(p, a, rotations[pick], ls, spacing, seed=seed,
+                             colours=None if colours is None else colours[pick])
     return Orientation(shape.up, shape.confidence,
                        f"object shape (learned scorer over {shape.candidates} candidate bases)")
 

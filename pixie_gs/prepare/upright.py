@@ -13,10 +13,13 @@ mesh, a generated object) gets its up from:
    share and stability of the base, hull area of the base and of the top, centre-of-mass height,
    the width profile along the height, height over diameter, alignment with the principal axes,
    lateral symmetry, mass share near the bottom and the top, the mass profile along the height
-   (sixths), how many vertical columns reach the base and the top (`column_ends`), and the
-   support, base area and floor columns relative to the object's best candidate (`FEATURES`);
-3. a **scorer**: a one-hidden-layer perceptron (numpy) over the standardised descriptors; the
-   candidates of one object compete through a softmax. The weights live in
+   (sixths), how many vertical columns reach the base and the top (`column_ends`), the support,
+   base area and floor columns relative to the object's best candidate, and (upright_view) the
+   mass by height × ring around the axis, how far the colour of the ends is from the object's
+   (a distance, not a colour: the generator's palette is not the world's), whether the ends are
+   closed and how thin they are (`FEATURES`);
+3. a **scorer**: the mean of a few one-hidden-layer perceptrons (numpy) over the standardised
+   descriptors; the candidates of one object compete through a softmax. The weights live in
    pixie_gs/data/upright_scorer.json, trained by scripts/train_upright.py on the dataset's TRAIN
    seeds under random rotations (the benchmark evaluates on the TEST seeds).
 
@@ -33,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from .gravity import flat_normals, score_direction
+from .upright_view import VIEW_FEATURES, view_features
 
 WEIGHTS = Path(__file__).resolve().parent.parent / "data" / "upright_scorer.json"
 SAMPLE = 4000  # Gaussians the descriptors look at
@@ -48,7 +52,7 @@ FEATURES = ("support", "stable", "below", "log_footprint", "com_height", "height
             "top_mass", "base_lateral_share", "top_lateral_share",
             "profile_1", "profile_2", "profile_3", "profile_4", "profile_5", "profile_6",
             "floor_columns", "top_columns", "column_bottom", "column_top",
-            "support_rel", "base_hull_rel", "floor_columns_rel")
+            "support_rel", "base_hull_rel", "floor_columns_rel") + VIEW_FEATURES
 PROFILE_BINS = 6  # mass share per sixth of the height (profile_1 = lowest)
 COLUMNS = 8  # lateral grid cells per robust diameter for the column features
 RELATIVE = (("support_rel", "support"), ("base_hull_rel", "base_hull_share"), ("floor_columns_rel", "floor_columns"))
@@ -131,11 +135,11 @@ def _hull_share(normals: np.ndarray, shares: np.ndarray, u: np.ndarray) -> float
 
 def describe(points: np.ndarray, weights: np.ndarray, normals: np.ndarray, flatness: np.ndarray,
              u: np.ndarray, tol: float, axes: np.ndarray, hull: tuple[np.ndarray, np.ndarray],
-             diameter: float, refine: bool = True) -> Candidate:
+             diameter: float, refine: bool = True, colours: "np.ndarray | None" = None) -> Candidate:
     """Candidate (refined by its base plane when `refine`) and its descriptors (FEATURES) for up
     `u` of points (M,3) with opacity weights (M,), Gaussian normals and flatness
-    (gravity.flat_normals), principal axes (3,3) as columns thin → long, hull facet groups and
-    the robust diameter (file units)."""
+    (gravity.flat_normals), principal axes (3,3) as columns thin → long, hull facet groups, the
+    robust diameter (file units) and colours (M,3) in [0, 1] (None: no colour cues)."""
     s = score_direction(points, weights, normals, flatness, u, tol, refine=refine)
     u = s.up / np.linalg.norm(s.up)
     top = score_direction(points, weights, normals, flatness, -u, tol, refine=False)
@@ -169,7 +173,8 @@ def describe(points: np.ndarray, weights: np.ndarray, normals: np.ndarray, flatn
         *widths, _hull_share(*hull, u), _hull_share(*hull, -u), top.support,
         *np.abs(axes.T @ u), isotropy, float(np.linalg.norm(foot_centre)) / r_all,
         float(weights[low].sum() / wsum), float(weights[high].sum() / wsum), base_lat, top_lat,
-        *profile, *column_ends(lateral, u, t, diameter), *np.zeros(len(RELATIVE))])
+        *profile, *column_ends(lateral, u, t, diameter), *np.zeros(len(RELATIVE)),
+        *view_features(h, t, lateral, radial, r_all, weights, colours, u, diameter)])
     return Candidate(u, f)
 
 
@@ -211,13 +216,15 @@ def add_relative(cands: "list[Candidate]") -> None:
 
 
 def candidates(points: np.ndarray, alphas: np.ndarray, rotations: np.ndarray, log_scales: np.ndarray,
-               spacing: float, seed: int = 0) -> list[Candidate]:
-    """Refined, de-duplicated up candidates of a cloud with their descriptors (module docstring)."""
+               spacing: float, seed: int = 0, colours: "np.ndarray | None" = None) -> list[Candidate]:
+    """Refined, de-duplicated up candidates of a cloud with their descriptors (module docstring);
+    colours (N,3) in [0, 1] or None."""
     rng = np.random.default_rng(seed)
     n = len(points)
     pick = rng.choice(n, SAMPLE, replace=False) if n > SAMPLE else np.arange(n)
     p = np.asarray(points[pick], np.float64)
     w = np.clip(np.asarray(alphas[pick], np.float64), 0.05, 1.0)
+    rgb = None if colours is None else np.asarray(colours[pick], np.float64)
     normals, flatness = flat_normals(rotations[pick], np.asarray(log_scales[pick], np.float64))
     lo, hi = np.percentile(p, [1, 99], axis=0)
     diameter = float(np.linalg.norm(hi - lo)) or 1.0
@@ -233,7 +240,7 @@ def candidates(points: np.ndarray, alphas: np.ndarray, rotations: np.ndarray, lo
     cos_same = np.cos(np.radians(SAME_DEG))
     for u, refine in raw:
         cand = describe(p, w, normals, flatness, np.asarray(u, np.float64) / np.linalg.norm(u), tol, vecs, hull,
-                        diameter, refine)
+                        diameter, refine, rgb)
         if all(float(cand.up @ o.up) < cos_same for o in out):
             out.append(cand)
     add_relative(out)
@@ -251,16 +258,21 @@ def load_scorer(path: str = str(WEIGHTS)) -> dict:
 
 
 def score(features: np.ndarray, scorer: dict) -> np.ndarray:
-    """Scores (K,) of candidate descriptors (K, F): tanh hidden layer, linear output."""
+    """Scores (K,) of candidate descriptors (K, F): the mean over the scorer's members (one, or an
+    ensemble stacked along a first axis: W1 (E,F,H), b1 (E,H), w2 (E,H), b2 (E,)) of a tanh hidden
+    layer and a linear output."""
     x = (features - scorer["mean"]) / scorer["std"]
-    return np.tanh(x @ scorer["W1"] + scorer["b1"]) @ scorer["w2"] + scorer["b2"]
+    W1 = scorer["W1"].reshape(-1, *scorer["W1"].shape[-2:])
+    b1, w2 = scorer["b1"].reshape(len(W1), -1), scorer["w2"].reshape(len(W1), -1)
+    hidden = np.tanh(np.einsum("kf,efh->ekh", x, W1) + b1[:, None, :])
+    return (np.einsum("ekh,eh->ek", hidden, w2) + np.reshape(scorer["b2"], -1)[:, None]).mean(axis=0)
 
 
 def estimate_upright(points: np.ndarray, alphas: np.ndarray, rotations: np.ndarray, log_scales: np.ndarray,
-                     spacing: float, seed: int = 0) -> UprightResult:
-    """Up of an object from its shape (module docstring): points (N,3), alphas (N,), rotations
-    (N,4) w,x,y,z, log_scales (N,3), spacing (file units)."""
-    cands = candidates(points, alphas, rotations, log_scales, spacing, seed)
+                     spacing: float, seed: int = 0, colours: "np.ndarray | None" = None) -> UprightResult:
+    """Up of an object from its shape and colours (module docstring): points (N,3), alphas (N,),
+    rotations (N,4) w,x,y,z, log_scales (N,3), spacing (file units), colours (N,3) in [0, 1] or None."""
+    cands = candidates(points, alphas, rotations, log_scales, spacing, seed, colours)
     s = score(np.stack([c.features for c in cands]), load_scorer())
     prob = np.exp(s - s.max())
     prob /= prob.sum()
