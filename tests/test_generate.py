@@ -338,13 +338,16 @@ def test_everyday_classes_textbook_values_inside_the_public_ranges():
 def test_generated_objects_look_like_captures(dataset):
     """Capture statistics measured on the real captures (docs/real_vs_generated.md): opacity spread
     0.01–0.98 with median ≈ 0.3, log10 anisotropy median ≈ 1.2, floaters; here pooled over one object
-    per class. The clean converter output (realistic=False) has one opacity per object."""
+    per class. Opacity is pooled over the objects drawn in "capture" opacity mode (the others keep one
+    high opacity: their number, Binomial(26, 0.2), would move a pooled median by ±0.15 from seed to
+    seed). The clean converter output (realistic=False) has one opacity per object."""
     from pixie_gs.dataset.assemble import build_object
 
     alphas, aniso, degrees, floaters, tilts = [], [], [], [], []
     for path in list_objects(dataset, "train"):
         cloud, meta = load_object(path)
-        alphas.append(cloud.opacities)
+        if meta["realism"]["opacity_mode"] == "capture":
+            alphas.append(cloud.opacities)
         s = cloud.scales
         aniso.append(np.log10(s.max(1) / s.min(1)))
         degrees.append(cloud.sh_degree)
@@ -352,8 +355,9 @@ def test_generated_objects_look_like_captures(dataset):
         tilts.append(meta["realism"]["tilt_deg"])
         if cloud.sh_degree:
             assert np.linalg.norm(cloud.sh_rest, axis=1).mean() > 0.005
+    assert len(alphas) >= 13  # most objects (share 0.8) spread their opacity like a capture
     a = np.concatenate(alphas)
-    assert np.percentile(a, 5) < 0.05 and np.percentile(a, 95) > 0.85 and 0.1 < np.median(a) < 0.6
+    assert np.percentile(a, 5) < 0.05 and np.percentile(a, 95) > 0.85 and 0.1 < np.median(a) < 0.45
     assert 0.6 < np.median(np.concatenate(aniso)) < 2.0
     assert any(d >= 1 for d in degrees) and any(d == 0 for d in degrees)
     assert sum(f > 0 for f in floaters) > 10 and max(tilts) <= 20.0 and max(tilts) > 2.0
