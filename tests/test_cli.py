@@ -83,6 +83,9 @@ def test_no_command_prints_help_and_exits_2(tmp_path):
     assert "demo" in result.stdout and "Exit codes" in result.stdout
 
 
+CAN_PLY = Path(__file__).resolve().parent.parent / "pixie_gs" / "data" / "examples" / "can.ply"
+
+
 def probe_last_line(probe: str, args: list[str], cwd: Path, env: dict | None = None) -> str:
     """The last line a `python -c probe ARGS` process prints (it must exit 0)."""
     out = subprocess.run([sys.executable, "-c", probe, *args], capture_output=True, text=True, env=env,
@@ -96,7 +99,7 @@ def test_thread_pool_defaults_unless_the_user_chose(tmp_path):
     value the user set is kept."""
     probe = ("import os, sys; from pixie_gs.cli.main import main; main(['info', sys.argv[1]]); "
              "import numpy, torch; print(os.environ.get('OMP_WAIT_POLICY'), os.environ.get('OPENBLAS_NUM_THREADS'))")
-    ply = Path(__file__).resolve().parent.parent / "pixie_gs" / "data" / "examples" / "can.ply"
+    ply = CAN_PLY
     for preset, want in (({}, "PASSIVE 1"), ({"OMP_WAIT_POLICY": "ACTIVE", "OPENBLAS_NUM_THREADS": "2"}, "ACTIVE 2")):
         env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "OPENBLAS_NUM_THREADS")} | preset
         assert probe_last_line(probe, [str(ply)], tmp_path, env) == want
@@ -105,7 +108,7 @@ def test_thread_pool_defaults_unless_the_user_chose(tmp_path):
 def test_only_the_pixie_process_skips_its_final_collection(tmp_path):
     """`main()` run as the process (no argv given) freezes gc at exit (the last collections walked every
     torch object: ~0.5 s); `main([...])` called by another program leaves the caller's gc alone."""
-    ply = Path(__file__).resolve().parent.parent / "pixie_gs" / "data" / "examples" / "can.ply"
+    ply = CAN_PLY
     probe = ("import atexit, gc, sys\n"
              "atexit.register(lambda: print('frozen', gc.get_freeze_count() > 0))\n"
              "from pixie_gs.cli.main import main\n"
@@ -140,7 +143,7 @@ def test_torch_is_imported_without_garbage_collections(tmp_path):
 def test_annotate_process_exits_at_once_after_flushing_and_atexit(tmp_path):
     """A single-file `pixie annotate` process ends with `os._exit` (no interpreter teardown) only after
     its output is complete, every atexit callback has run and its buffered stdout is flushed."""
-    ply = Path(__file__).resolve().parent.parent / "pixie_gs" / "data" / "examples" / "can.ply"
+    ply = CAN_PLY
     probe = ("import atexit, sys\n"
              "atexit.register(lambda: print('atexit ran'))\n"
              "import pixie_gs.cli.main as cli\n"
