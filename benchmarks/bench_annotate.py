@@ -29,8 +29,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-
-WORKER_ENV = "PIXIE_ANNOTATE_WORKER"  # batch/steps.py: "1" read + prepare in a forked worker, "0" in one process
+from pixie_gs.batch.steps import WORKER_ENV  # noqa: E402 - "1": read + prepare in a forked worker, "0": one process
 
 
 def _children_cpu() -> float:

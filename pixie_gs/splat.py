@@ -198,7 +198,7 @@ class SplatCloud:
 
     def rgb(self) -> np.ndarray:
         """Base colour (N,3) in [0, 1] from the degree-0 SH coefficients."""
-        return np.clip(0.5 + SH_C0 * self.sh_dc, 0.0, 1.0).astype(np.float32)
+        return sh_dc_to_rgb(self.sh_dc)
 
     def rotation_matrices(self) -> np.ndarray:
         return quat_to_rotmat(self.rotations)
@@ -433,6 +433,12 @@ def read_splat_valid(path: str | Path, drop_invalid: bool = False) -> SplatCloud
 
             kept.source_format = detect_format(path)
         return kept
+
+
+def sh_dc_to_rgb(sh_dc: np.ndarray) -> np.ndarray:
+    """Base colour (M,3) float32 in [0, 1] of degree-0 SH coefficients (M,3) (the inverse of rgb_to_sh_dc,
+    clipped): for a subset of Gaussians without computing every colour first."""
+    return np.clip(0.5 + SH_C0 * sh_dc, 0.0, 1.0).astype(np.float32)
 
 
 def rgb_to_sh_dc(rgb: np.ndarray) -> np.ndarray:

@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from ..splat import SH_C0, SplatCloud
+from ..splat import SplatCloud, sh_dc_to_rgb
 from .density import floater_mask, robust_spacing
 from .gravity import GROUND_SHARE, GROUND_WIDER, flat_normals, score_direction
 from .orient import estimate_orientation
@@ -60,7 +60,7 @@ def prepare_cloud(cloud: SplatCloud, up: "str | np.ndarray | None" = "auto", cro
         if len(pick) > ESTIMATE_SAMPLE:  # the estimate looks at a fixed-size sample: cost independent of N
             pick = np.sort(np.random.default_rng(seed + 1).choice(pick, ESTIMATE_SAMPLE, replace=False))
         est = estimate_orientation(x[pick], alpha[pick], cloud.rotations[pick], cloud.log_scales[pick], spacing,
-                                   seed=seed, colours=np.clip(0.5 + SH_C0 * cloud.sh_dc[pick], 0.0, 1.0))
+                                   seed=seed, colours=sh_dc_to_rgb(cloud.sh_dc[pick]))
         u, method, confidence = est.up, est.method, est.confidence
         if confidence < LOW_CONFIDENCE:  # no clear evidence: keep the file's +z (pixie's own convention)
             u, method = np.array([0.0, 0.0, 1.0]), f"default z (evidence weak: {est.method})"
