@@ -90,14 +90,9 @@ def score_candidate(effect: str, part: int | None, params: dict, num_params: int
     cand_bic = bic(sse, n, num_params)
     delta = base_bic - cand_bic
     explained = 1.0 - sse / baseline_sse if baseline_sse > 0 else 0.0
-    noise2 = noise_sigma ** 2 + floor_sigma ** 2
-    excess = max(baseline_sse - n * noise2, 0.0)
-    excess_explained = (baseline_sse - sse) / excess if excess > 0 else 0.0
-    significant = bool(delta > bic_threshold and excess_explained >= min_excess_explained
-                       and baseline_sse - sse > floor_factor * n * floor_sigma ** 2)
-    if original_sse is not None and original_sse > baseline_sse:
-        original_excess = max(original_sse - n * noise2, 1e-300)
-        significant = significant and (baseline_sse - sse) / original_excess >= MIN_ORIGINAL_SHARE
+    excess_explained, removes_enough = _gap_rules(baseline_sse - sse, baseline_sse, n, noise_sigma, original_sse,
+                                                  floor_sigma, floor_factor, min_excess_explained)
+    significant = bool(delta > bic_threshold and removes_enough)
     return Scored(effect, part, params, num_params, sse, float(np.sqrt(3.0 * sse / n)), cand_bic,
                   aic(sse, n, num_params), float(delta), float(explained), float(excess_explained),
                   significant, evaluations)
@@ -114,16 +109,24 @@ def can_be_significant(baseline_sse: float, n: int, noise_sigma: float, original
     (excess 0: it explains no share of it), or, in a chain, when the whole baseline is less than
     MIN_ORIGINAL_SHARE of the first model's above-noise gap.
     """
+    return _gap_rules(baseline_sse, baseline_sse, n, noise_sigma, original_sse, floor_sigma, floor_factor,
+                      min_excess_explained)[1]
+
+
+def _gap_rules(removed: float, baseline_sse: float, n: int, noise_sigma: float, original_sse: float | None,
+               floor_sigma: float, floor_factor: float, min_excess_explained: float) -> tuple[float, bool]:
+    """(share of the above-noise squared gap that removing `removed` of `baseline_sse` explains, whether
+    that removal passes score_candidate's rules besides ΔBIC): the share reaches `min_excess_explained`,
+    the removal exceeds `floor_factor`·n·f², and in a chain it is MIN_ORIGINAL_SHARE of the first
+    model's above-noise gap. Each rule grows with `removed`, so removed = baseline_sse is the best case."""
     noise2 = noise_sigma ** 2 + floor_sigma ** 2
-    if not baseline_sse > floor_factor * n * floor_sigma ** 2:
-        return False
-    if min_excess_explained > 0 and not baseline_sse - n * noise2 > 0:
-        return False
+    excess = max(baseline_sse - n * noise2, 0.0)
+    excess_explained = removed / excess if excess > 0 else 0.0
+    passes = excess_explained >= min_excess_explained and removed > floor_factor * n * floor_sigma ** 2
     if original_sse is not None and original_sse > baseline_sse:
         original_excess = max(original_sse - n * noise2, 1e-300)
-        if baseline_sse / original_excess < MIN_ORIGINAL_SHARE:
-            return False
-    return True
+        passes = passes and removed / original_excess >= MIN_ORIGINAL_SHARE
+    return excess_explained, bool(passes)
 
 
 def rank(candidates: list[Scored]) -> list[Scored]:
