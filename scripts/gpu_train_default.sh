@@ -31,8 +31,10 @@ for split in train val test; do
   tiers=$TRAIN_TIERS; [ $split = val ] && tiers=$VAL_TIERS; [ $split = test ] && tiers=$TEST_TIERS
   parts=(); k=0
   for tier in $tiers; do
-    n=${tier%%:*}; g=${tier##*:}; part="$DATA/parts/$split$k"
-    $P generate "$part" --count $n --split $split --seed $(( SEED * 100 + k )) --workers $WORKERS --gaussians $g -q --force \
+    # a tier "COUNT:GAUSSIANS:clean" makes its objects as `pixie convert` writes a mesh (`generate --clean`)
+    n=${tier%%:*}; rest=${tier#*:}; g=${rest%%:*}; kind=""; [ "${rest##*:}" = clean ] && kind="--clean"
+    part="$DATA/parts/$split$k"
+    $P generate "$part" --count $n --split $split --seed $(( SEED * 100 + k )) --workers $WORKERS --gaussians $g $kind -q --force \
       >>"$LOG" 2>&1 || { say "generate $split tier $tier failed"; exit 1; }
     parts+=("$part"); k=$((k + 1))
   done

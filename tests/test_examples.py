@@ -55,6 +55,8 @@ def test_tree_in_wind_top_moves_downwind_pot_stays(tmp_path):
     assert facts["anchored_gaussians"] > 0
     assert facts["anchored_max_motion_m"] == 0.0  # the pot does not move at all
     assert facts["top_max_downwind_m"] > 0.05 * facts["tree_height_m"]  # wind along +x bends the top
+    # gravity is on: the tree stands under its own weight (the paper's 2e6 Pa trunk sank by ~60 % in 3 s)
+    assert facts["top_sink_last_m"] < 0.1 * facts["tree_height_m"]
 
 
 def test_duck_drop_bounces(tmp_path):
@@ -132,7 +134,8 @@ def test_demo_writes_everything_and_the_tree_sways_with_its_pot_fixed(tmp_path):
         assert logged.get("/" + entity, 0) >= 4, logged
     assert result.anchored_max_displacement == 0.0  # pot and base do not move
     assert result.top_displacement[-1, 0] > 0.0  # the top moves downwind (+x) ...
-    assert abs(result.top_displacement[-1, 0]) > 10 * abs(result.top_displacement[-1, 1])  # ... along the wind
+    # ... more along the wind than across it (under gravity the off-centre crown also leans a little)
+    assert result.top_displacement[-1, 0] > abs(result.top_displacement[-1, 1])
 
 
 def test_carrier_moves_unsimulated_gaussians_with_their_nearest_particle():

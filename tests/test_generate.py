@@ -47,9 +47,12 @@ def test_table_has_the_paper_classes_with_paper_values():
     tree = TABLE["tree"]
     assert [p.name for p in tree.parts] == ["pot", "trunk", "leaves"]
     # single table values are widened ±20 % (E, density) and ±0.03 (nu) around the paper's centre
-    assert tree.part("trunk").E_pa == pytest.approx((1.6e6, 2.4e6))
+    assert tree.part("leaves").E_pa == pytest.approx((1.6e4, 2.4e4))
     assert tree.part("leaves").density_kg_m3 == pytest.approx((160.0, 240.0))
-    assert tree.part("pot").nu == pytest.approx((0.37, 0.43))
+    assert tree.part("leaves").nu == pytest.approx((0.37, 0.43))
+    # the trunk is wood and the pot ceramic (textbook values, not the paper's 2e6 / 2e8 Pa, 400 kg/m3)
+    assert tree.part("trunk").E_pa == (1e9, 1e10) and tree.part("trunk").density_kg_m3 == (500.0, 900.0)
+    assert tree.part("pot").density_kg_m3 == (1700.0, 2400.0) and TABLE["flowers"].part("vase").E_pa[0] >= 1e10
     assert tree.part("pot").material_id == STATIONARY and tree.part("trunk").material_id == JELLY
     assert TABLE["soda_cans"].part("can").E_pa == (5e10, 8e10)  # given ranges are used as they are
     assert TABLE["soda_cans"].part("can").material_id == METAL

@@ -182,9 +182,9 @@ def test_shipped_checkpoint_on_clean_objects_of_every_class():
     a regression guard on the shipped checkpoint's per-Gaussian material accuracy and on the share of
     Gaussians whose E lies within half a decade of their part's range in the class table (labels are
     drawn anywhere in that range, so a per-object truth is not knowable from the splat; the range is).
-    Measured 0.904 and 0.870 (2026-11-26 soup); its known misses here, also in docs/model_card.md: a
-    doughnut (bread) read as another class, a lying metal bottle read as glass (same E and ρ, another
-    class id), a guitar's stand. The issue's held-out targets are measured by `pixie evaluate`."""
+    Measured 0.947 and 0.925 (r30, 2026-11-26; the soup before: 0.904 and 0.870); its known misses here,
+    also in docs/model_card.md: a lying metal bottle read as glass (same E and ρ, another class id), a
+    guitar's stand, the tree's branches inside the crown (crown-soft, not wood). The issue's held-out targets are measured by `pixie evaluate`."""
     from pixie_gs.annotate import annotate_cloud
     from pixie_gs.dataset.assemble import build_object
     from pixie_gs.dataset.generate import object_seed

@@ -49,6 +49,7 @@ def test_confidence_separates_training_classes_from_out_of_vocabulary():
               for i, name in enumerate(table)]  # every class; capture-like and clean in turn
     outside = [mean_confidence(c) for c in _out_of_vocabulary(np.random.default_rng(1))]
     auroc = np.mean([(a > b) + 0.5 * (a == b) for a in inside for b in outside])
+    print(f"AUROC {auroc:.3f}")
     assert auroc >= 0.8, (auroc, inside, outside)
     assert np.median(inside) > 0.8 and min(outside) < 0.1
 

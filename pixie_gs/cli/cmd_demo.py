@@ -11,7 +11,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p = sub.add_parser(
         "demo", parents=parents, help="annotate + simulate the shipped potted tree in wind (the quick start)",
         description="End-to-end demo: predicts materials for the shipped potted-tree splat with the shipped "
-        "checkpoint, simulates it swaying in a gust of wind with its pot held in place, and writes "
+        "checkpoint, simulates it under gravity swaying in a gust of wind with its pot held in place, and writes "
         "DIR/tree_annotated.ply, DIR/frames/frame_*.ply + tracks.npz, DIR/demo.rrd (rerun: RGB | material | "
         "log E side by side with a time slider), DIR/demo.gif and DIR/demo_strip.png (open without rerun) "
         "and DIR/scene.json. Re-running replaces these files. Under a minute on a 2-core CPU.",
@@ -41,6 +41,9 @@ def run(args: argparse.Namespace) -> int:
         get_model(args.checkpoint, resolve_torch_device(args.device))
     result = run_demo(args.out, DemoSettings(frames=args.frames, seed=args.seed, device=args.device,
                                              checkpoint=args.checkpoint))
+    top = result.top_displacement_m
+    stage(f"top of the {result.height_m:.2f} m tree: up to {100 * top[:, 0].max():.1f} cm downwind in the gust, "
+          f"{100 * -top[-1, 2]:.1f} cm lower at the end (its own weight)")
     total = sum(result.seconds.values())
     stage(f"done in {total:.0f} s (" + ", ".join(f"{k} {v:.0f} s" for k, v in result.seconds.items()) + ")")
     for key in ("annotated", "frames", "rrd", "gif", "strip", "scene"):
