@@ -59,6 +59,12 @@ def test_soup_refuses_other_networks_and_single_inputs(tmp_path, capsys):
         make_soup([tmp_path / "a.pt"], tmp_path / "soup.pt")
     with pytest.raises(InputError, match="not found"):
         make_soup([tmp_path / "a.pt", tmp_path / "missing.pt"], tmp_path / "soup.pt")
+    (tmp_path / "text.pt").write_text("not a checkpoint")
+    with pytest.raises(InputError, match="not a readable torch checkpoint"):
+        make_soup([tmp_path / "a.pt", tmp_path / "text.pt"], tmp_path / "soup.pt")
+    torch.save({"weights": torch.zeros(3)}, tmp_path / "foreign.pt")  # a torch file, not a pixie-gs checkpoint
+    with pytest.raises(InputError, match="not a pixie-gs material checkpoint"):
+        make_soup([tmp_path / "foreign.pt", tmp_path / "a.pt"], tmp_path / "soup.pt")
     assert not (tmp_path / "soup.pt").exists()
     _checkpoint(tmp_path / "b.pt", 2)
     main([str(tmp_path / "soup.pt"), str(tmp_path / "a.pt"), str(tmp_path / "b.pt")])

@@ -71,19 +71,25 @@ def save_checkpoint(path: str | Path, model: MaterialUNet, features: FeatureSpec
         torch.save(payload, tmp)
 
 
-def load_checkpoint(path: str | Path | None = None, device: str = "cpu") -> LoadedModel:
-    """Load a checkpoint (the shipped default when `path` is None) onto `device`, in eval mode."""
+def read_payload(path: Path) -> dict:
+    """The checkpoint file's dict as `torch.load(weights_only=True)` reads it, not yet validated; a
+    missing or unreadable file is a one-line InputError naming it."""
     import torch
 
-    path = Path(path) if path is not None else DEFAULT_CHECKPOINT
     if not path.is_file():
         raise InputError("checkpoint not found" + (" (the shipped default is missing from this install)"
                                                     if path == DEFAULT_CHECKPOINT else ""), path)
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
+        return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for foreign or damaged files
         text = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
         raise InputError(f"not a readable torch checkpoint ({text})", path) from None
+
+
+def load_checkpoint(path: str | Path | None = None, device: str = "cpu") -> LoadedModel:
+    """Load a checkpoint (the shipped default when `path` is None) onto `device`, in eval mode."""
+    path = Path(path) if path is not None else DEFAULT_CHECKPOINT
+    payload = read_payload(path)
     config, features, model = _validate(payload, path)  # the model on the meta device: weights assigned below
     weights = {k: v.float() if v.is_floating_point() else v for k, v in payload["state_dict"].items()}
     try:

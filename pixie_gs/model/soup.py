@@ -20,6 +20,7 @@ from pathlib import Path
 
 from ..atomic import atomic_path
 from ..errors import InputError
+from .checkpoint import read_payload, validate_payload
 
 MATCHING_KEYS = ("format", "format_version", "config", "features", "normalization")
 
@@ -42,10 +43,10 @@ def make_soup(inputs: list[str | Path], out: str | Path, stats_from: int = -1) -
         raise InputError("a soup needs at least two checkpoints")
     paths = [Path(p) for p in inputs]
     payloads = []
-    for p in paths:
-        if not p.is_file():
-            raise InputError("checkpoint not found", p)
-        payloads.append(torch.load(p, map_location="cpu", weights_only=True))
+    for p in paths:  # each one a valid checkpoint (schema, sizes, finite weights) before any averaging
+        payload = read_payload(p)
+        validate_payload(payload, p)
+        payloads.append(payload)
     first = payloads[0]
     for p, payload in zip(paths[1:], payloads[1:]):
         for key in MATCHING_KEYS:
