@@ -44,9 +44,11 @@ AUTO_SOFTEN_LIMIT = 0.1  # "auto": a solid part that would need E × less than t
 RIGID_MATERIALS = (JELLY, METAL)  # solids; the others flow and are softened instead
 FAR = 1.0e30
 FAR_F = wp.constant(FAR)  # the same, inside kernels
-# a held grid node, or a point of the body touching the floor, weighs this many times the body: it
-# (nearly) stops the motion there. Not more: the float32 sums of the common-motion solve cancel.
-HEAVY = wp.constant(1.0e3)
+# a held grid node weighs this many times the body, and so do a body's floor contacts together: it
+# (nearly) stops the motion there (all but 1/(1 + HEAVY) of the approach goes each substep). Not more:
+# at 1e3 per contact point a 20°-tilted slab landing on an edge got tens of rad/s from the
+# common-motion solve and diverged (the real pool capture's `drop`; tests/test_sim_rigid.py).
+HEAVY = wp.constant(100.0)
 
 
 @dataclass
@@ -210,6 +212,35 @@ def body_offset(rot: wp.quat, r0: wp.vec3):
     return wp.quat_to_matrix(rot) * r0
 
 
+@wp.func
+def contact_velocity(vel: wp.vec3, omega: wp.vec3, r: wp.vec3, gravity: wp.vec3, dt: float):
+    """A rigid point's velocity this substep before any contact (m/s): v + ω×r + g·dt."""
+    return vel + wp.cross(omega, r) + dt * gravity
+
+
+@wp.func
+def passes_floor(u: wp.vec3, z: float, floor: float, dt: float):
+    """Whether a point at height z (m) moving at u would be below the floor after dt s."""
+    return u[2] < 0.0 and z + dt * u[2] < floor
+
+
+@wp.kernel
+def rigid_count_contacts(x: wp.array(dtype=wp.vec3), order: wp.array(dtype=wp.int32),
+                         body_of: wp.array(dtype=wp.int32), r0: wp.array(dtype=wp.vec3),
+                         rot: wp.array(dtype=wp.quat), vel: wp.array(dtype=wp.vec3), omega: wp.array(dtype=wp.vec3),
+                         floor: float, gravity: wp.vec3, dt: float, contacts: wp.array(dtype=float)):
+    """Per body, the number of its particles that would pass the floor this substep (rigid_particles
+    shares the floor's weight among them)."""
+    p = wp.tid()
+    idx = order[p]
+    b = body_of[idx]
+    if b < 0:
+        return
+    u = contact_velocity(vel[b], omega[b], body_offset(rot[b], r0[idx]), gravity, dt)
+    if passes_floor(u, x[p][2], floor, dt):
+        wp.atomic_add(contacts, b, 1.0)
+
+
 @wp.kernel
 def rigid_particles(v: wp.array(dtype=wp.vec3), x: wp.array(dtype=wp.vec3), order: wp.array(dtype=wp.int32),
                     body_of: wp.array(dtype=wp.int32), r0: wp.array(dtype=wp.vec3), mass: wp.array(dtype=float),
@@ -223,9 +254,11 @@ def rigid_particles(v: wp.array(dtype=wp.vec3), x: wp.array(dtype=wp.vec3), orde
     """Per rigid particle: tag the 27 grid nodes it covers with its body (id + 1); add any change
     of its velocity since the last rigid_scatter (an impulse) to its body as momentum m·Δv and
     angular momentum r×m·Δv; widen the body's extents. A particle that would pass the floor this
-    substep becomes a contact point: a HEAVY× point mass whose velocity keeps its sliding part and
-    loses the part into the floor, summed with the covered nodes, so the common-motion solve
-    stops the body there with the torque that gives (a body landing on a corner tips over)."""
+    substep becomes a contact point whose velocity keeps its sliding part and loses the part into the
+    floor, summed with the covered nodes, so the common-motion solve stops the body there with the
+    torque that gives (a body landing on a corner tips over). The contact points share HEAVY× the
+    body's mass (`contacts`, counted by rigid_count_contacts): one corner weighs HEAVY×, a face of
+    thousands of points no more in all, so the float32 sums of the solve do not cancel."""
     p = wp.tid()
     idx = order[p]
     b = body_of[idx]
@@ -245,16 +278,15 @@ def rigid_particles(v: wp.array(dtype=wp.vec3), x: wp.array(dtype=wp.vec3), orde
     for d in range(3):
         wp.atomic_min(lo, b, d, xp[d])
         wp.atomic_max(hi, b, d, xp[d])
-    u = vel[b] + wp.cross(omega[b], r) + dt * gravity  # this point's velocity this substep, before contact
-    if u[2] < 0.0 and xp[2] + dt * u[2] < floor:
+    u = contact_velocity(vel[b], omega[b], r, gravity, dt)  # this point's velocity this substep, before contact
+    if passes_floor(u, xp[2], floor, dt):
         target = wp.vec3(u[0], u[1], wp.min((floor - xp[2]) / dt, 0.0))
-        mh = HEAVY * body_mass[b]
+        mh = HEAVY * body_mass[b] / wp.max(contacts[b], 1.0)
         wp.atomic_add(node_mass, b, mh)
         wp.atomic_add(node_moment, b, mh * r)
         wp.atomic_add(node_momentum, b, mh * target)
         wp.atomic_add(node_ang, b, mh * wp.cross(r, target))
         wp.atomic_add(node_inertia, b, mh * (wp.dot(r, r) * wp.identity(n=3, dtype=float) - wp.outer(r, r)))
-        wp.atomic_add(contacts, b, 1.0)
 
 
 @wp.kernel
@@ -476,6 +508,9 @@ class RigidBodies:
         """After P2G, before the grid update (which clears the node masses): tag the nodes the
         bodies cover, collect impulses given to rigid particles, keep the node masses and the
         held-node weights."""
+        wp.launch(rigid_count_contacts, dim=x.shape[0], device=self.device,
+                  inputs=[x, order, self.body_of, self.r0, self.rot, self.vel, self.omega, float(floor_m), self.gravity,
+                          float(dt), self.contacts])
         wp.launch(rigid_particles, dim=x.shape[0], device=self.device,
                   inputs=[v, x, order, self.body_of, self.r0, self.particle_mass, self.rot, self.vel, self.omega, grid,
                           self.node_body, self.kick, self.kick_ang, self.lo, self.hi, self.body_mass, float(floor_m),
