@@ -47,6 +47,12 @@ class SimRecord:
     frames: int
     stats: dict = field(default_factory=dict)  # batched: sim.batch.simulate_batch's `stats`
 
+    @classmethod
+    def since(cls, stage: str, start_s: float, runs: int, particles: int, grid: int, frames: int,
+              stats: dict | None = None) -> "SimRecord":
+        """The record of a simulation that began at `start_s` (time.perf_counter()) and ends now."""
+        return cls(stage, start_s, time.perf_counter() - start_s, runs, particles, grid, frames, stats or {})
+
 
 @dataclass
 class Fidelity:
@@ -215,10 +221,9 @@ class ForwardModel:
         return sample_at(traj.x[:, ids].astype(np.float64), self.fps, self.tracks.t)
 
     def _record(self, start: float, runs: int, particles: int, scene, stats: dict | None = None) -> None:
-        seconds = time.perf_counter() - start
-        self.seconds += seconds
-        self.log.append(SimRecord(self.stage, start, seconds, runs, particles, int(scene.domain.grid), self.frames,
-                                  stats or {}))
+        record = SimRecord.since(self.stage, start, runs, particles, int(scene.domain.grid), self.frames, stats)
+        self.seconds += record.seconds
+        self.log.append(record)
 
     def simulate_full(self, scene, cloud: SplatCloud | None = None) -> np.ndarray:
         """Tracked points (T,M,3) of the full model `cloud` (default: the input) in `scene`."""

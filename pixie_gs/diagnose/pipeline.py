@@ -466,8 +466,7 @@ def _simulate_as_given(cloud: SplatCloud, scene, frames: int, fps: float, ids: n
     finally:
         set_quiet(quiet)
     if log is not None:
-        log.append(SimRecord("checks", start, time.perf_counter() - start, 1, len(cloud), int(scene.domain.grid),
-                             frames + 4, sim_stats))
+        log.append(SimRecord.since("checks", start, 1, len(cloud), int(scene.domain.grid), frames + 4, sim_stats))
     return xs
 
 
