@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from fuzz_corpus import vertex_table, write_ply
+from test_reliability import default_sigint
 from pixie_gs.batch.steps import WORKER_ENV, AnnotateOptions, PreparingAhead
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux") or len(os.sched_getaffinity(0)) < 2,
@@ -116,7 +117,7 @@ def test_signal_stops_the_command_and_its_worker(tmp_path, sig, code):
     env = dict(os.environ, **{WORKER_ENV: "1"})
     proc = subprocess.Popen([sys.executable, "-m", "pixie_gs", "annotate", str(big), str(tmp_path / "o.ply"),
                              "--device", "cpu", "-q"], cwd=tmp_path, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=default_sigint)
     t0 = time.time()
     while len(_workers_of(big.name)) < 2 and time.time() - t0 < 60 and proc.poll() is None:
         time.sleep(0.02)  # wait for the fork

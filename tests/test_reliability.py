@@ -374,7 +374,7 @@ def test_failed_forced_run_keeps_the_old_output_whole(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["diverge.json", "in.ply", "o", "scene.json"]
 
 
-def _default_sigint() -> None:
+def default_sigint() -> None:
     """In the child before exec: Ctrl-C as a terminal delivers it. A shell starts background jobs with
     SIGINT ignored and Python keeps an inherited SIG_IGN, so under `pytest &` the child would run on
     (the SIGINT case's old "rare flake": it fails every time in a background job without this)."""
@@ -384,7 +384,7 @@ def _default_sigint() -> None:
 def _start_simulate(tmp_path: Path, ply: Path, out: Path, sc: Path, frames: int) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "pixie_gs", *_simulate(ply, out, sc, frames, "--force")],
                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=_default_sigint)
+                            preexec_fn=default_sigint)
 
 
 def _wait_for_staging(tmp_path: Path, proc: subprocess.Popen, frames: int = 2, timeout_s: float = 60) -> None:
