@@ -52,6 +52,27 @@ def advected_position(xp: wp.vec3, new_v: wp.vec3, dt: float, grid: GridInfo) ->
     return grid.origin + xn * grid.dx
 
 
+@wp.func
+def gather_velocity(xp: wp.vec3, grid: GridInfo, grid_velocity: wp.array3d(dtype=wp.vec3)):
+    """G2P's gather at a particle at xp: its new velocity (m/s) and APIC affine matrix C (1/s), the
+    B-spline-weighted sums over the 27 nodes of its stencil (g2p and p2g_column.g2p_carry)."""
+    base, fx = stencil_of(xp, grid)
+    wx = bspline_weights(fx[0])
+    wy = bspline_weights(fx[1])
+    wz = bspline_weights(fx[2])
+    new_v = wp.vec3(0.0)
+    new_C = wp.mat33(0.0)
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                w = wx[i] * wy[j] * wz[k]
+                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * grid.dx
+                gv = grid_velocity[base[0] + i, base[1] + j, base[2] + k]
+                new_v = new_v + w * gv
+                new_C = new_C + (4.0 * grid.inv_dx * grid.inv_dx * w) * wp.outer(gv, dpos)
+    return new_v, new_C
+
+
 @wp.kernel
 def p2g(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtype=wp.mat33),
         stress: wp.array(dtype=wp.mat33), volume: wp.array(dtype=float), mass: wp.array(dtype=float),
@@ -233,20 +254,7 @@ def g2p(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.array(dtyp
         v[p] = wp.vec3(0.0)
         C[p] = wp.mat33(0.0)
         return
-    base, fx = stencil_of(x[p], grid)
-    wx = bspline_weights(fx[0])
-    wy = bspline_weights(fx[1])
-    wz = bspline_weights(fx[2])
-    new_v = wp.vec3(0.0)
-    new_C = wp.mat33(0.0)
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
-                w = wx[i] * wy[j] * wz[k]
-                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * grid.dx
-                gv = grid_velocity[base[0] + i, base[1] + j, base[2] + k]
-                new_v = new_v + w * gv
-                new_C = new_C + (4.0 * grid.inv_dx * grid.inv_dx * w) * wp.outer(gv, dpos)
+    new_v, new_C = gather_velocity(x[p], grid, grid_velocity)
     v[p] = new_v
     C[p] = new_C
     x[p] = advected_position(x[p], new_v, dt, grid)

@@ -24,7 +24,8 @@ from __future__ import annotations
 import warp as wp
 
 from .constitutive import MaterialParams, update_material
-from .kernels import GridInfo, advected_position, bspline_weights, mls_affine, node_velocity, stencil_of
+from .kernels import (GridInfo, advected_position, bspline_weights, gather_velocity, mls_affine, node_velocity,
+                      stencil_of)
 
 COLUMN_THREADS = 9  # threads per run: one per (x, y) column of the 3×3×3 stencil
 
@@ -379,20 +380,7 @@ def g2p_carry(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.arra
         v[p] = wp.vec3(0.0)
         C[p] = wp.mat33(0.0)
         return
-    base, fx = stencil_of(x[p], grid)
-    wx = bspline_weights(fx[0])
-    wy = bspline_weights(fx[1])
-    wz = bspline_weights(fx[2])
-    new_v = wp.vec3(0.0)
-    new_C = wp.mat33(0.0)
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
-                w = wx[i] * wy[j] * wz[k]
-                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * grid.dx
-                gv = grid_velocity[base[0] + i, base[1] + j, base[2] + k]
-                new_v = new_v + w * gv
-                new_C = new_C + (4.0 * grid.inv_dx * grid.inv_dx * w) * wp.outer(gv, dpos)
+    new_v, new_C = gather_velocity(x[p], grid, grid_velocity)
     v[p] = new_v
     x[p] = advected_position(x[p], new_v, dt, grid)
 
