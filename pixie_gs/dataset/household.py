@@ -27,7 +27,10 @@ FABRIC = [(0.70, 0.25, 0.25), (0.30, 0.40, 0.60), (0.85, 0.80, 0.70), (0.40, 0.5
           (0.90, 0.70, 0.30), (0.50, 0.50, 0.52)]
 STONE = [(0.50, 0.50, 0.48), (0.42, 0.40, 0.37), (0.62, 0.58, 0.52), (0.35, 0.35, 0.36), (0.58, 0.50, 0.42)]
 CRUST = [(0.72, 0.48, 0.22), (0.60, 0.38, 0.18), (0.80, 0.60, 0.32), (0.50, 0.30, 0.15)]
-ICING = [(0.95, 0.60, 0.75), (0.40, 0.25, 0.15), (0.97, 0.95, 0.92), (0.90, 0.80, 0.30)]
+ICING = [(0.95, 0.60, 0.75), (0.40, 0.25, 0.15), (0.97, 0.95, 0.92), (0.90, 0.80, 0.30), (0.75, 0.52, 0.78)]
+DONUT_DOUGH = [(0.80, 0.70, 0.52), (0.86, 0.76, 0.58), (0.76, 0.62, 0.42)]  # pale fried dough under icing
+SPRINKLES = [(0.20, 0.35, 0.85), (0.95, 0.20, 0.25), (0.98, 0.85, 0.15), (0.25, 0.75, 0.35), (0.97, 0.97, 0.97),
+             (0.60, 0.25, 0.75)]
 FRUIT = [(0.80, 0.10, 0.12), (0.95, 0.55, 0.10), (0.55, 0.75, 0.20), (0.95, 0.85, 0.25), (0.45, 0.15, 0.35)]
 CARDBOARD = [(0.70, 0.55, 0.38), (0.62, 0.48, 0.32), (0.78, 0.65, 0.48)]
 PAPER = [(0.95, 0.94, 0.90), (0.90, 0.88, 0.80)]
@@ -81,7 +84,7 @@ def chair(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
 @recipe("guitar")
 def guitar(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
     """Acoustic/electric guitar 0.9–1.1 m standing upright on its lower bout, with an optional
-    metal stand (a tubular A-frame behind it)."""
+    metal stand (a tubular A-frame behind it, tubes 16–28 mm)."""
     L = rng.uniform(0.9, 1.1)
     depth = rng.uniform(0.05, 0.11)
     lower, upper = rng.uniform(0.17, 0.21), rng.uniform(0.13, 0.16)
@@ -100,7 +103,7 @@ def guitar(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
               Piece("body", hole, (0.08, 0.06, 0.05), 0.02, weight=2.0)]
     if "stand" in parts:
         steel = jitter(rng, pick(rng, STEEL), 0.04)
-        r = 0.008
+        r = rng.uniform(0.008, 0.014)  # tube radius, m
         rails = [tapered_segment(np.array([sx * 0.18, 0.05, 0.0]), np.array([0, 0.12, 0.75 * L]), r, r, 8)
                  for sx in (-1, 1)]
         rails += [tapered_segment(np.array([-0.2, -0.05, base]), np.array([0.2, -0.05, base]), r, r, 8),
@@ -257,24 +260,47 @@ def stone(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
     return pieces, _round({"size_m": size, "count": count})
 
 
+def _donut(rng: np.random.Generator, crust: tuple[float, float, float]) -> tuple[list[Piece], dict]:
+    """A doughnut ring 8–25 cm across, its tube 0.4–0.8 of the ring radius, with icing on the top half
+    (70 %) and sprinkles on the icing (half of the iced ones); every piece is dough."""
+    R = rng.uniform(0.04, 0.08)
+    tube = R * rng.uniform(0.4, 0.8)
+    dough_rgb = jitter(rng, pick(rng, DONUT_DOUGH), 0.05) if rng.random() < 0.5 else crust
+    ring = trimesh.creation.torus(R, tube, major_sections=32, minor_sections=16)
+    ring.apply_translation([0, 0, -ring.vertices[:, 2].min()])
+    pieces = [Piece("dough", ring, dough_rgb, 0.05, fill=True)]
+    iced = rng.random() < 0.7
+    sprinkles = 0
+    if iced:
+        top = trimesh.creation.torus(R, tube * 1.04, major_sections=32, minor_sections=16)
+        top.apply_translation([0, 0, tube * 1.0 + tube * 0.04])
+        keep = top.vertices[:, 2] > tube * rng.uniform(0.9, 1.3)
+        faces = top.faces[keep[top.faces].all(1)]
+        pieces.append(Piece("dough", trimesh.Trimesh(top.vertices, faces, process=False),
+                            jitter(rng, pick(rng, ICING), 0.05), 0.08, weight=1.5))
+        if rng.random() < 0.5:
+            sprinkles = int(rng.integers(40, 160))
+            upper = top.vertices[top.vertices[:, 2] > tube * 1.5]
+            colours = [pick(rng, SPRINKLES) for _ in range(int(rng.integers(1, 4)))]
+            groups: list[list[trimesh.Trimesh]] = [[] for _ in colours]
+            for k in range(sprinkles):
+                p = upper[int(rng.integers(len(upper)))] + np.array([0.0, 0.0, 0.002])
+                a = rng.uniform(0, 2 * np.pi)
+                half = rng.uniform(0.002, 0.004) * np.array([np.cos(a), np.sin(a), 0.0])
+                groups[k % len(colours)].append(tapered_segment(p - half, p + half, 0.0012, 0.0012, 5))
+            pieces += [Piece("dough", concatenate(g), c, 0.04, weight=2.0) for g, c in zip(groups, colours) if g]
+    return pieces, _round({"kind": "donut", "radius_m": R, "tube_m": tube, "iced": iced, "sprinkles": sprinkles})
+
+
 @recipe("bread")
 def bread(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
-    """Baked goods, filled: a loaf or baguette (crust), a bun, or a doughnut ring with icing."""
+    """Baked goods, filled: a loaf or baguette (crust), a bun, or a doughnut ring (thin to fat, pale or
+    brown dough) with icing, often with sprinkles. The pale dough, fat rings and sprinkles came in after
+    a real doughnut capture (pale ring, lilac icing, blue sprinkles) read as hard plastic."""
     kind = pick(rng, ["loaf", "baguette", "bun", "donut"])
     crust = jitter(rng, pick(rng, CRUST), 0.06)
     if kind == "donut":
-        R = rng.uniform(0.04, 0.07)
-        ring = trimesh.creation.torus(R, R * rng.uniform(0.4, 0.6), major_sections=32, minor_sections=16)
-        ring.apply_translation([0, 0, -ring.vertices[:, 2].min()])
-        pieces = [Piece("dough", ring, crust, 0.05, fill=True)]
-        if rng.random() < 0.7:
-            top = trimesh.creation.torus(R, R * 0.52, major_sections=32, minor_sections=16)
-            top.apply_translation([0, 0, -ring.vertices[:, 2].min() + R * 0.12 + 0.002])
-            keep = top.vertices[:, 2] > np.median(top.vertices[:, 2])
-            faces = top.faces[keep[top.faces].all(1)]
-            pieces.append(Piece("dough", trimesh.Trimesh(top.vertices, faces, process=False),
-                                jitter(rng, pick(rng, ICING), 0.05), 0.08, weight=1.5))
-        return pieces, _round({"kind": kind, "radius_m": R})
+        return _donut(rng, crust)
     dims = {"loaf": (0.12, 0.07, 0.06), "baguette": (0.3, 0.035, 0.03), "bun": (0.05, 0.05, 0.035)}[kind]
     r = np.array(dims) * rng.uniform(0.8, 1.25)
     m = ellipsoid(np.array([0, 0, r[2]]), r, 2)

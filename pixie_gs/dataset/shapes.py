@@ -53,12 +53,21 @@ def pick(rng: np.random.Generator, options: list):
     return options[int(rng.integers(len(options)))]
 
 
+def side_stream(rng: np.random.Generator, salt: int) -> np.random.Generator:
+    """A generator seeded from `rng`'s present state without advancing it (PCG64). Shape options added
+    to a recipe later draw from here, so an object drawn before them (the shipped examples) keeps
+    every draw of the main stream and, where the option is off, its exact shape."""
+    state = int(rng.bit_generator.state["state"]["state"])
+    return np.random.default_rng([state & (2**64 - 1), state >> 64, salt])
+
+
 BARK = [(0.36, 0.25, 0.17), (0.30, 0.22, 0.15), (0.45, 0.35, 0.25), (0.40, 0.30, 0.22)]
 LEAF_GREENS = [(0.20, 0.45, 0.15), (0.28, 0.52, 0.18), (0.15, 0.35, 0.12), (0.35, 0.55, 0.20),
                (0.22, 0.40, 0.20)]
 AUTUMN = [(0.80, 0.45, 0.12), (0.75, 0.25, 0.10), (0.85, 0.65, 0.15)]
 POTS = [(0.72, 0.40, 0.25), (0.65, 0.35, 0.22), (0.30, 0.30, 0.32), (0.90, 0.90, 0.88), (0.25, 0.35, 0.55)]
 SOIL = [(0.30, 0.21, 0.14), (0.38, 0.27, 0.17), (0.24, 0.18, 0.12)]
+PEBBLES = [(0.80, 0.76, 0.68), (0.62, 0.60, 0.58), (0.88, 0.86, 0.82)]  # decorative top dressing
 PETALS = [(0.90, 0.15, 0.20), (0.95, 0.55, 0.70), (0.98, 0.85, 0.20), (0.97, 0.97, 0.95), (0.60, 0.30, 0.75),
           (0.98, 0.55, 0.15)]
 VASES = [(0.92, 0.92, 0.90), (0.20, 0.35, 0.65), (0.70, 0.40, 0.25), (0.15, 0.15, 0.18), (0.55, 0.75, 0.70),
@@ -130,31 +139,45 @@ def blob_cluster(rng: np.random.Generator, centre: np.ndarray, size: float, coun
 
 
 # ---------------------------------------------------------------------------------- plants
-def pot_pieces(rng: np.random.Generator, height: float, radius: float, part: str) -> tuple[list[Piece], float]:
-    """A flower pot shell (tapered, rim lip) with a soil disc inside; returns pieces, top height."""
+def pot_pieces(rng: np.random.Generator, height: float, radius: float, part: str,
+               side: np.random.Generator | None = None) -> tuple[list[Piece], float]:
+    """A flower pot shell with a soil disc inside; returns pieces, top height. The shell is tapered
+    with a rim lip, or (a third of the pots, when a `side` stream is given) a round-bellied bowl, and
+    the soil is earth or (a quarter) pale pebbles."""
     taper = rng.uniform(0.65, 0.9)
     lip = rng.uniform(1.03, 1.1)
     radii = np.array([radius * taper, radius, radius * lip, radius * lip])
     heights = np.array([0.0, height * 0.85, height * 0.87, height])
+    bowl = side is not None and side.random() < 0.33
+    if bowl:
+        t = np.linspace(0.0, 1.0, 8)
+        radii = radius * (taper * 0.8 + (1.0 - taper * 0.8) * np.sin(np.pi * np.clip(0.15 + 0.75 * t, 0, 1)) ** 0.5)
+        heights = t * height
     shell = lathe(radii, heights, sections=28, cap_bottom=True, cap_top=False)
     soil_z = height * rng.uniform(0.85, 0.95)
-    soil = lathe(np.array([radius * 0.98, radius * 0.98]), np.array([soil_z - 0.005, soil_z]), 28)
-    pieces = [Piece(part, shell, jitter(rng, pick(rng, POTS)), 0.03),
-              Piece(part, soil, jitter(rng, pick(rng, SOIL)), 0.05, weight=0.6)]
+    soil_r = radii[-1] * 0.95 if bowl else radius * 0.98
+    soil = lathe(np.array([soil_r, soil_r]), np.array([soil_z - 0.005, soil_z]), 28)
+    pot_rgb, soil_rgb = jitter(rng, pick(rng, POTS)), jitter(rng, pick(rng, SOIL))
+    soil_noise = 0.05
+    if side is not None and side.random() < 0.25:
+        soil_rgb, soil_noise = jitter(side, pick(side, PEBBLES)), 0.12
+    pieces = [Piece(part, shell, pot_rgb, 0.03), Piece(part, soil, soil_rgb, soil_noise, weight=0.6)]
     return pieces, soil_z
 
 
 @recipe("potted_tree")
 def potted_tree(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
     """Tree of height 1–2.5 m: optional pot, trunk with recursive branches, leaf clusters or
-    conifer tiers."""
+    conifer tiers. A quarter of the potted broadleaf ones are house plants: a short trunk and foliage
+    along the branches down to the pot (a real potted plant hid its stem; its pot read as trunk wood)."""
+    side = side_stream(rng, 1)
     height = rng.uniform(1.0, 2.5)
     pieces: list[Piece] = []
     base_z = 0.0
     has_pot = "pot" in parts
     if has_pot:
         pot_h = height * rng.uniform(0.14, 0.22)
-        pot_pcs, base_z = pot_pieces(rng, pot_h, pot_h * rng.uniform(0.7, 1.0), "pot")
+        pot_pcs, base_z = pot_pieces(rng, pot_h, pot_h * rng.uniform(0.7, 1.0), "pot", side)
         pieces += pot_pcs
     kind = "conifer" if rng.random() < 0.3 else "broadleaf"
     bark = jitter(rng, pick(rng, BARK))
@@ -178,6 +201,9 @@ def potted_tree(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict
         params = {"height_m": height, "kind": kind, "tiers": tiers, "crown_radius_m": width}
     else:
         trunk_len = (top - base_z) * rng.uniform(0.35, 0.55)
+        houseplant = has_pot and side.random() < 0.25
+        if houseplant:
+            trunk_len = (top - base_z) * side.uniform(0.06, 0.18)
         direction = _unit(np.array([rng.normal(0, 0.08), rng.normal(0, 0.08), 1.0]))
         start = np.array([0.0, 0.0, base_z - 0.02])
         segs = [tapered_segment(start, start + direction * trunk_len, trunk_r, trunk_r * 0.8, 10)]
@@ -193,10 +219,14 @@ def potted_tree(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict
         blobs = []
         for tip in tips:
             blobs += blob_cluster(rng, tip, crown, int(rng.integers(3, 6)))
+        if houseplant:  # foliage along each branch line from the fork to its tip
+            for tip in tips:
+                for u in side.uniform(0.1, 0.8, 2):
+                    blobs += blob_cluster(side, fork + u * (tip - fork), crown * 0.9, 3)
         pieces += [Piece("trunk", concatenate(segs), bark, 0.05),
                    Piece("leaves", concatenate(blobs), leaf, 0.08)]
         params = {"height_m": height, "kind": kind, "branch_depth": depth, "tips": len(tips),
-                  "cluster_size_m": crown}
+                  "cluster_size_m": crown, "houseplant": houseplant}
     params["pot"] = has_pot
     return pieces, _round(params)
 
