@@ -35,6 +35,11 @@ if [ "$mode" = start ]; then
   echo "started run in $RUN (pid $(cat "$RUN/pid"))"
 elif [ "$mode" != watch ]; then
   echo "unknown mode $mode (start, watch)"; exit 2
+elif [ ! -f "$RUN/pid" ]; then
+  # a fresh machine (the last one was given back between calls): the run is gone, not finished
+  echo "no run in $RUN on this machine: it was lost between calls; resume it from the last copy in \$OUT"
+  echo "(copy CKPT and CKPT.state.pt into $RUN, add --resume to EXTRA_TRAIN_ARGS, call start again)"
+  exit 3
 fi
 
 running() { kill -0 "$(cat "$RUN/pid" 2>/dev/null)" 2>/dev/null; }
