@@ -261,8 +261,8 @@ def stone(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
 
 
 def _donut(rng: np.random.Generator, crust: tuple[float, float, float]) -> tuple[list[Piece], dict]:
-    """A doughnut ring 8–25 cm across, its tube 0.4–0.8 of the ring radius, with icing on the top half
-    (70 %) and sprinkles on the icing (half of the iced ones); every piece is dough."""
+    """A doughnut ring 8–25 cm across, its tube 0.4–0.8 of the ring radius, with icing (70 %) over the top
+    third to most of the ring and sprinkles on the icing (half of the iced ones); every piece is dough."""
     R = rng.uniform(0.04, 0.08)
     tube = R * rng.uniform(0.4, 0.8)
     dough_rgb = jitter(rng, pick(rng, DONUT_DOUGH), 0.05) if rng.random() < 0.5 else crust
@@ -274,7 +274,7 @@ def _donut(rng: np.random.Generator, crust: tuple[float, float, float]) -> tuple
     if iced:
         top = trimesh.creation.torus(R, tube * 1.04, major_sections=32, minor_sections=16)
         top.apply_translation([0, 0, tube * 1.0 + tube * 0.04])
-        keep = top.vertices[:, 2] > tube * rng.uniform(0.9, 1.3)
+        keep = top.vertices[:, 2] > tube * rng.uniform(0.3, 1.3)  # from the top third to most of the ring
         faces = top.faces[keep[top.faces].all(1)]
         pieces.append(Piece("dough", trimesh.Trimesh(top.vertices, faces, process=False),
                             jitter(rng, pick(rng, ICING), 0.05), 0.08, weight=1.5))
@@ -295,9 +295,11 @@ def _donut(rng: np.random.Generator, crust: tuple[float, float, float]) -> tuple
 @recipe("bread")
 def bread(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
     """Baked goods, filled: a loaf or baguette (crust), a bun, or a doughnut ring (thin to fat, pale or
-    brown dough) with icing, often with sprinkles. The pale dough, fat rings and sprinkles came in after
-    a real doughnut capture (pale ring, lilac icing, blue sprinkles) read as hard plastic."""
-    kind = pick(rng, ["loaf", "baguette", "bun", "donut"])
+    brown dough) with icing, often with sprinkles; two in five are doughnuts. The pale dough, fat rings,
+    sprinkles and icing that covers most of the ring came in after a real doughnut capture (pale ring,
+    lilac icing over two thirds of it, blue sprinkles) read as hard plastic: recoloured brown, the same
+    capture reads as bread."""
+    kind = pick(rng, ["loaf", "baguette", "bun", "donut", "donut"])
     crust = jitter(rng, pick(rng, CRUST), 0.06)
     if kind == "donut":
         return _donut(rng, crust)
