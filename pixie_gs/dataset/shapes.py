@@ -67,7 +67,6 @@ LEAF_GREENS = [(0.20, 0.45, 0.15), (0.28, 0.52, 0.18), (0.15, 0.35, 0.12), (0.35
 AUTUMN = [(0.80, 0.45, 0.12), (0.75, 0.25, 0.10), (0.85, 0.65, 0.15)]
 POTS = [(0.72, 0.40, 0.25), (0.65, 0.35, 0.22), (0.30, 0.30, 0.32), (0.90, 0.90, 0.88), (0.25, 0.35, 0.55)]
 SOIL = [(0.30, 0.21, 0.14), (0.38, 0.27, 0.17), (0.24, 0.18, 0.12)]
-PEBBLES = [(0.80, 0.76, 0.68), (0.62, 0.60, 0.58), (0.88, 0.86, 0.82)]  # decorative top dressing
 PETALS = [(0.90, 0.15, 0.20), (0.95, 0.55, 0.70), (0.98, 0.85, 0.20), (0.97, 0.97, 0.95), (0.60, 0.30, 0.75),
           (0.98, 0.55, 0.15)]
 VASES = [(0.92, 0.92, 0.90), (0.20, 0.35, 0.65), (0.70, 0.40, 0.25), (0.15, 0.15, 0.18), (0.55, 0.75, 0.70),
@@ -142,8 +141,7 @@ def blob_cluster(rng: np.random.Generator, centre: np.ndarray, size: float, coun
 def pot_pieces(rng: np.random.Generator, height: float, radius: float, part: str,
                side: np.random.Generator | None = None) -> tuple[list[Piece], float]:
     """A flower pot shell with a soil disc inside; returns pieces, top height. The shell is tapered
-    with a rim lip, or (a third of the pots, when a `side` stream is given) a round-bellied bowl, and
-    the soil is earth or (a quarter) pale pebbles."""
+    with a rim lip, or (a third of the pots, when a `side` stream is given) a round-bellied bowl."""
     taper = rng.uniform(0.65, 0.9)
     lip = rng.uniform(1.03, 1.1)
     radii = np.array([radius * taper, radius, radius * lip, radius * lip])
@@ -157,11 +155,8 @@ def pot_pieces(rng: np.random.Generator, height: float, radius: float, part: str
     soil_z = height * rng.uniform(0.85, 0.95)
     soil_r = radii[-1] * 0.95 if bowl else radius * 0.98
     soil = lathe(np.array([soil_r, soil_r]), np.array([soil_z - 0.005, soil_z]), 28)
-    pot_rgb, soil_rgb = jitter(rng, pick(rng, POTS)), jitter(rng, pick(rng, SOIL))
-    soil_noise = 0.05
-    if side is not None and side.random() < 0.25:
-        soil_rgb, soil_noise = jitter(side, pick(side, PEBBLES)), 0.12
-    pieces = [Piece(part, shell, pot_rgb, 0.03), Piece(part, soil, soil_rgb, soil_noise, weight=0.6)]
+    pieces = [Piece(part, shell, jitter(rng, pick(rng, POTS)), 0.03),
+              Piece(part, soil, jitter(rng, pick(rng, SOIL)), 0.05, weight=0.6)]
     return pieces, soil_z
 
 
