@@ -17,7 +17,7 @@ from __future__ import annotations
 import warp as wp
 
 from .constitutive import MaterialParams, update_material
-from .kernels import GridInfo, advected_position, bspline_weights, mls_affine, stencil_of
+from .kernels import GridInfo, advected_position, bspline_weights, gather_velocity, mls_affine, stencil_of
 from .reduce import fails_guard
 
 
@@ -164,20 +164,7 @@ def g2p_batched(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), C: wp.ar
         C[p] = wp.mat33(0.0)
         return
     dt = dt_run[r]
-    base, fx = stencil_of(x[p], grid)
-    wx = bspline_weights(fx[0])
-    wy = bspline_weights(fx[1])
-    wz = bspline_weights(fx[2])
-    new_v = wp.vec3(0.0)
-    new_C = wp.mat33(0.0)
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
-                w = wx[i] * wy[j] * wz[k]
-                dpos = (wp.vec3(float(i), float(j), float(k)) - fx) * grid.dx
-                gv = grid_velocity[r, base[0] + i, base[1] + j, base[2] + k]
-                new_v = new_v + w * gv
-                new_C = new_C + (4.0 * grid.inv_dx * grid.inv_dx * w) * wp.outer(gv, dpos)
+    new_v, new_C = gather_velocity(x[p], grid, grid_velocity[r])  # the run's 3-D grid, a view
     v[p] = new_v
     C[p] = new_C
     x[p] = advected_position(x[p], new_v, dt, grid)

@@ -55,7 +55,8 @@ def advected_position(xp: wp.vec3, new_v: wp.vec3, dt: float, grid: GridInfo) ->
 @wp.func
 def gather_velocity(xp: wp.vec3, grid: GridInfo, grid_velocity: wp.array3d(dtype=wp.vec3)):
     """G2P's gather at a particle at xp: its new velocity (m/s) and APIC affine matrix C (1/s), the
-    B-spline-weighted sums over the 27 nodes of its stencil (g2p and p2g_column.g2p_carry)."""
+    B-spline-weighted sums over the 27 nodes of its stencil (g2p, p2g_column.g2p_carry, and
+    batch_kernels.g2p_batched on its run's grid)."""
     base, fx = stencil_of(xp, grid)
     wx = bspline_weights(fx[0])
     wy = bspline_weights(fx[1])
