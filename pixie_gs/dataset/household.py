@@ -273,7 +273,7 @@ def _donut(rng: np.random.Generator, crust: tuple[float, float, float]) -> tuple
     sprinkles = 0
     if iced:
         top = trimesh.creation.torus(R, tube * 1.04, major_sections=32, minor_sections=16)
-        top.apply_translation([0, 0, tube * 1.0 + tube * 0.04])
+        top.apply_translation([0, 0, tube * 1.04])  # 4 % thicker than the ring, bottom level with it: a shell over it
         keep = top.vertices[:, 2] > tube * rng.uniform(0.3, 1.3)  # from the top third to most of the ring
         faces = top.faces[keep[top.faces].all(1)]
         pieces.append(Piece("dough", trimesh.Trimesh(top.vertices, faces, process=False),
