@@ -262,7 +262,8 @@ def stone(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
 
 def _donut(rng: np.random.Generator, crust: tuple[float, float, float]) -> tuple[list[Piece], dict]:
     """A doughnut ring 8–25 cm across, its tube 0.4–0.8 of the ring radius, with icing (70 %) over the top
-    third to most of the ring and sprinkles on the icing (half of the iced ones); every piece is dough."""
+    third to most of the ring and sprinkles on the icing (half of the iced ones, 40 to 1,500 of them); every
+    piece is dough."""
     R = rng.uniform(0.04, 0.08)
     tube = R * rng.uniform(0.4, 0.8)
     dough_rgb = jitter(rng, pick(rng, DONUT_DOUGH), 0.05) if rng.random() < 0.5 else crust
@@ -279,12 +280,14 @@ def _donut(rng: np.random.Generator, crust: tuple[float, float, float]) -> tuple
         pieces.append(Piece("dough", trimesh.Trimesh(top.vertices, faces, process=False),
                             jitter(rng, pick(rng, ICING), 0.05), 0.08, weight=1.5))
         if rng.random() < 0.5:
-            sprinkles = int(rng.integers(40, 160))
-            upper = top.vertices[top.vertices[:, 2] > tube * 1.5]
+            sprinkles = int(np.exp(rng.uniform(np.log(40), np.log(1500))))  # sparse to a dense coat (a real one)
+            t_ice = tube * 1.04  # sprinkles anywhere on the icing's upper band (sin φ > 0.44), 2 mm above it
             colours = [pick(rng, SPRINKLES) for _ in range(int(rng.integers(1, 4)))]
             groups: list[list[trimesh.Trimesh]] = [[] for _ in colours]
             for k in range(sprinkles):
-                p = upper[int(rng.integers(len(upper)))] + np.array([0.0, 0.0, 0.002])
+                theta, phi = rng.uniform(0, 2 * np.pi), rng.uniform(0.46, np.pi - 0.46)
+                rho = R + (t_ice + 0.002) * np.cos(phi)
+                p = np.array([rho * np.cos(theta), rho * np.sin(theta), t_ice + (t_ice + 0.002) * np.sin(phi)])
                 a = rng.uniform(0, 2 * np.pi)
                 half = rng.uniform(0.002, 0.004) * np.array([np.cos(a), np.sin(a), 0.0])
                 groups[k % len(colours)].append(tapered_segment(p - half, p + half, 0.0012, 0.0012, 5))
