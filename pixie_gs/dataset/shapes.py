@@ -139,9 +139,10 @@ def blob_cluster(rng: np.random.Generator, centre: np.ndarray, size: float, coun
 
 # ---------------------------------------------------------------------------------- plants
 def pot_pieces(rng: np.random.Generator, height: float, radius: float, part: str,
-               side: np.random.Generator | None = None) -> tuple[list[Piece], float]:
-    """A flower pot shell with a soil disc inside; returns pieces, top height. The shell is tapered
-    with a rim lip, or (a third of the pots, when a `side` stream is given) a round-bellied bowl."""
+               side: np.random.Generator | None = None) -> tuple[list[Piece], float, str]:
+    """A flower pot shell with a soil disc inside; returns pieces, top height (m) and the pot's shape
+    ("tapered" or "bowl"). The shell is tapered with a rim lip, or (a third of the pots, when a `side`
+    stream is given) a round-bellied bowl."""
     taper = rng.uniform(0.65, 0.9)
     lip = rng.uniform(1.03, 1.1)
     radii = np.array([radius * taper, radius, radius * lip, radius * lip])
@@ -157,7 +158,7 @@ def pot_pieces(rng: np.random.Generator, height: float, radius: float, part: str
     soil = lathe(np.array([soil_r, soil_r]), np.array([soil_z - 0.005, soil_z]), 28)
     pieces = [Piece(part, shell, jitter(rng, pick(rng, POTS)), 0.03),
               Piece(part, soil, jitter(rng, pick(rng, SOIL)), 0.05, weight=0.6)]
-    return pieces, soil_z
+    return pieces, soil_z, "bowl" if bowl else "tapered"
 
 
 @recipe("potted_tree")
@@ -172,7 +173,7 @@ def potted_tree(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict
     has_pot = "pot" in parts
     if has_pot:
         pot_h = height * rng.uniform(0.14, 0.22)
-        pot_pcs, base_z = pot_pieces(rng, pot_h, pot_h * rng.uniform(0.7, 1.0), "pot", side)
+        pot_pcs, base_z, pot_shape = pot_pieces(rng, pot_h, pot_h * rng.uniform(0.7, 1.0), "pot", side)
         pieces += pot_pcs
     kind = "conifer" if rng.random() < 0.3 else "broadleaf"
     bark = jitter(rng, pick(rng, BARK))
@@ -223,6 +224,8 @@ def potted_tree(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict
         params = {"height_m": height, "kind": kind, "branch_depth": depth, "tips": len(tips),
                   "cluster_size_m": crown, "houseplant": houseplant}
     params["pot"] = has_pot
+    if has_pot:
+        params["pot_shape"] = pot_shape
     return pieces, _round(params)
 
 
