@@ -31,8 +31,11 @@ for split in train val test; do
   tiers=$TRAIN_TIERS; [ $split = val ] && tiers=$VAL_TIERS; [ $split = test ] && tiers=$TEST_TIERS
   parts=(); k=0
   for tier in $tiers; do
-    # a tier "COUNT:GAUSSIANS:clean" makes its objects as `pixie convert` writes a mesh (`generate --clean`)
-    n=${tier%%:*}; rest=${tier#*:}; g=${rest%%:*}; kind=""; [ "${rest##*:}" = clean ] && kind="--clean"
+    # a tier "COUNT:GAUSSIANS:clean" makes its objects as `pixie convert` writes a mesh (`generate --clean`);
+    # "COUNT:GAUSSIANS:capture|clean:CLASS,CLASS" draws only those classes (a tier that leans on a few)
+    IFS=: read -r n g look only <<<"$tier"
+    kind=""; [ "$look" = clean ] && kind="--clean"
+    [ -n "${only:-}" ] && kind="$kind --classes $only"
     part="$DATA/parts/$split$k"
     $P generate "$part" --count $n --split $split --seed $(( SEED * 100 + k )) --workers $WORKERS --gaussians $g $kind -q --force \
       >>"$LOG" 2>&1 || { say "generate $split tier $tier failed"; exit 1; }
