@@ -85,6 +85,24 @@ def test_augmentation_keeps_labels_and_changes_the_grid(store):
     assert not torch.equal(plain.occupied, aug.occupied)  # rotated/stretched box covers other voxels
 
 
+def test_tilt_augmentation_tilts_a_share_of_objects_within_its_bound(store):
+    """`pixie train --tilt-deg 40`: about `tilt_share` of the objects have their up axis turned, by at most
+    40°; without tilt every object keeps +z up (yaw, flips and stretch leave it), and labels follow."""
+    from pixie_gs.model.batch import augmentation_matrix, object_generator
+
+    def up_angles(cfg: AugmentConfig) -> np.ndarray:
+        ups = [augmentation_matrix(object_generator(5, i), cfg, "cpu") @ torch.tensor([0.0, 0.0, 1.0])
+               for i in range(400)]
+        return np.array([math.degrees(math.acos(min(1.0, float(u[2] / u.norm())))) for u in ups])
+
+    tilted = up_angles(AugmentConfig(tilt_max_deg=40.0, tilt_share=0.5))
+    assert 0.4 < (tilted > 0.01).mean() < 0.6
+    assert 35.0 < tilted.max() <= 40.0 + 1e-3
+    assert up_angles(AugmentConfig()).max() < 0.01
+    batch = build_batch(store, [1], SPEC, AugmentConfig(tilt_max_deg=40.0, tilt_share=1.0), 3)
+    assert torch.all(batch.target_class[batch.occupied] == METAL)
+
+
 def test_tiny_training_run_reduces_the_loss(store):
     torch.manual_seed(0)
     model = MaterialUNet(ModelConfig(input_channels=NAMES, projector_hidden=8, projector_out=8, base_channels=8,
@@ -445,3 +463,13 @@ def test_non_finite_weight_is_named_wherever_it_is(tmp_path):
     torch.save(payload, path)
     with pytest.raises(InputError, match=f"weight '{key}' holds NaN or inf \\(2 values\\)"):
         load_checkpoint(path)
+
+
+@pytest.mark.parametrize("flag,value", [("--tilt-deg", "nan"), ("--tilt-deg", "120"), ("--tilt-share", "1.5")])
+def test_train_rejects_a_tilt_outside_its_range(tmp_path, capsys, flag, value):
+    from pixie_gs.cli.main import main
+
+    rc = main(["train", str(tmp_path), "--out", str(tmp_path / "m.pt"), flag, value, "--device", "cpu", "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1 and "--tilt-deg must be within 0–90" in err[0], (rc, err)
+    assert not (tmp_path / "m.pt").exists()

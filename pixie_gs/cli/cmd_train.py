@@ -35,6 +35,10 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--res-blocks", type=int, default=1, help="residual blocks per U-Net level (default 1)")
     p.add_argument("--resolution", type=int, default=64, help="grid cells per side (divisible by 2^(levels-1))")
     p.add_argument("--no-augment", action="store_true", help="no yaw/flip/scale/colour augmentation")
+    p.add_argument("--tilt-deg", type=float, default=0.0, metavar="DEG",
+                   help="augmentation: tilt a share of the objects (--tilt-share, default 0.5) about a random "
+                   "horizontal axis by up to DEG degrees (default 0: none)")
+    p.add_argument("--tilt-share", type=float, default=0.5, help="share of objects tilted (with --tilt-deg)")
     p.add_argument("--workers", type=int, default=1, help="processes reading the dataset")
     p.add_argument("--limit-train", type=int, default=None, help="use only the first K train objects")
     p.add_argument("--limit-val", type=int, default=None, help="use only the first K val objects")
@@ -64,8 +68,11 @@ def run(args: argparse.Namespace) -> int:
     for name in ("epochs", "batch_size", "base_channels", "res_blocks", "workers", "build_objects"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             raise InputError(f"--{name.replace('_', '-')} must be ≥ 1")
+    if not (0.0 <= args.tilt_deg <= 90.0 and 0.0 <= args.tilt_share <= 1.0):
+        raise InputError("--tilt-deg must be within 0–90 and --tilt-share within 0–1")
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, time_budget_s=args.time_budget_s,
                       seed=args.seed, augment=not args.no_augment, workers=args.workers,
+                      tilt_max_deg=args.tilt_deg, tilt_share=args.tilt_share,
                       limit_train=args.limit_train, limit_val=args.limit_val, input_mode=args.inputs,
                       init_from=args.init, objects_per_build=args.build_objects,
                       model={"base_channels": args.base_channels, "multipliers": mults, "res_blocks": args.res_blocks},

@@ -24,6 +24,10 @@ class AugmentConfig:
     scale_jitter: float = 0.15  # per-axis stretch factor in [1 − j, 1 + j]
     colour_gain: float = 0.1  # per-channel RGB gain in [1 − g, 1 + g]
     brightness: float = 0.05  # RGB offset in [−b, b]
+    # A share of objects tilted about a random horizontal axis by up to this angle (degrees): generated
+    # objects stand nearly upright (residual tilt ≤ 20°), so a metal can tilted 30° read as elastic.
+    tilt_max_deg: float = 0.0
+    tilt_share: float = 0.5
 
 
 @dataclass
@@ -38,8 +42,19 @@ class Batch:
     means_unit: list
 
 
+def tilt_matrix(angle_rad: float, azimuth_rad: float):
+    """(3,3) rotation by `angle_rad` about the horizontal axis at `azimuth_rad` from +x (Rodrigues)."""
+    import torch
+
+    axis = torch.tensor([math.cos(azimuth_rad), math.sin(azimuth_rad), 0.0])
+    k = torch.tensor([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return torch.eye(3) + math.sin(angle_rad) * k + (1.0 - math.cos(angle_rad)) * (k @ k)
+
+
 def augmentation_matrix(gen, cfg: AugmentConfig, device):
-    """A = S · R_yaw · F (3,3): flips, then a yaw rotation about +z, then a per-axis stretch."""
+    """A = T · S · R_yaw · F (3,3): flips, a yaw rotation about +z, a per-axis stretch, then (a share
+    `tilt_share` of objects, when `tilt_max_deg` > 0) a tilt T about a random horizontal axis. Without
+    tilt no further numbers are drawn, so earlier runs' augmentations are unchanged."""
     import torch
 
     u = torch.rand(6, generator=gen)
@@ -49,7 +64,12 @@ def augmentation_matrix(gen, cfg: AugmentConfig, device):
     flip = torch.diag(torch.tensor([(-1.0 if float(u[1]) < 0.5 else 1.0) if cfg.flips else 1.0,
                                     (-1.0 if float(u[2]) < 0.5 else 1.0) if cfg.flips else 1.0, 1.0]))
     stretch = torch.diag(1.0 + cfg.scale_jitter * (2 * u[3:6] - 1))
-    return (stretch @ rot @ flip).to(device)
+    a = stretch @ rot @ flip
+    if cfg.tilt_max_deg > 0:
+        t = torch.rand(3, generator=gen)
+        if float(t[0]) < cfg.tilt_share:
+            a = tilt_matrix(math.radians(cfg.tilt_max_deg) * float(t[1]), 2 * math.pi * float(t[2])) @ a
+    return a.to(device)
 
 
 def object_generator(epoch_seed: int, index: int):

@@ -40,6 +40,8 @@ class TrainConfig:
     class_weight: float = 1.0
     seed: int = 0
     augment: bool = True
+    tilt_max_deg: float = 0.0  # augmentation: tilt a share of objects by up to this angle (AugmentConfig)
+    tilt_share: float = 0.5
     workers: int = 1
     limit_train: int | None = None
     limit_val: int | None = None
@@ -185,7 +187,7 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         from torch.nn.parallel import DistributedDataParallel
 
         model = DistributedDataParallel(net, device_ids=[torch.device(device).index] if use_cuda(device) else None)
-    aug = AugmentConfig() if cfg.augment else None
+    aug = AugmentConfig(tilt_max_deg=cfg.tilt_max_deg, tilt_share=cfg.tilt_share) if cfg.augment else None
     per_build = cfg.objects_per_build or default_objects_per_build(device, spec.resolution,
                                                                        len(names) + NUM_CLASSES + 3)
     val_batch = VAL_BATCH_CUDA if use_cuda(device) else VAL_BATCH_CPU
