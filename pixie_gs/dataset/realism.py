@@ -130,13 +130,18 @@ def _keep_mask(cloud: SplatCloud, part_id: np.ndarray, rng: np.random.Generator)
     return keep
 
 
+def horizontal_tilt(angle_rad: float, azimuth_rad: float) -> np.ndarray:
+    """(3,3) rotation by `angle_rad` about the horizontal axis at `azimuth_rad` from +x (Rodrigues):
+    a capture's residual tilt here, the training tilt augmentation in model/batch.py."""
+    axis = np.array([math.cos(azimuth_rad), math.sin(azimuth_rad), 0.0])
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + math.sin(angle_rad) * k + (1 - math.cos(angle_rad)) * k @ k
+
+
 def _tilt(rng: np.random.Generator) -> tuple[np.ndarray, float]:
     angle = min(abs(rng.normal(0.0, TILT_STD_DEG)), TILT_MAX_DEG)
     phi = rng.uniform(0, 2 * math.pi)
-    axis = np.array([math.cos(phi), math.sin(phi), 0.0])
-    a = math.radians(angle)
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + math.sin(a) * k + (1 - math.cos(a)) * k @ k, angle
+    return horizontal_tilt(math.radians(angle), phi), angle
 
 
 def capture_like(cloud: SplatCloud, part_id: np.ndarray, rng: np.random.Generator

@@ -42,15 +42,6 @@ class Batch:
     means_unit: list
 
 
-def tilt_matrix(angle_rad: float, azimuth_rad: float):
-    """(3,3) rotation by `angle_rad` about the horizontal axis at `azimuth_rad` from +x (Rodrigues)."""
-    import torch
-
-    axis = torch.tensor([math.cos(azimuth_rad), math.sin(azimuth_rad), 0.0])
-    k = torch.tensor([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return torch.eye(3) + math.sin(angle_rad) * k + (1.0 - math.cos(angle_rad)) * (k @ k)
-
-
 def augmentation_matrix(gen, cfg: AugmentConfig, device):
     """A = T · S · R_yaw · F (3,3): flips, a yaw rotation about +z, a per-axis stretch, then (a share
     `tilt_share` of objects, when `tilt_max_deg` > 0) a tilt T about a random horizontal axis. Without
@@ -68,7 +59,10 @@ def augmentation_matrix(gen, cfg: AugmentConfig, device):
     if cfg.tilt_max_deg > 0:
         t = torch.rand(3, generator=gen)
         if float(t[0]) < cfg.tilt_share:
-            a = tilt_matrix(math.radians(cfg.tilt_max_deg) * float(t[1]), 2 * math.pi * float(t[2])) @ a
+            from ..dataset.realism import horizontal_tilt  # the captures' tilt; training imports dataset anyway
+
+            tilt = horizontal_tilt(math.radians(cfg.tilt_max_deg) * float(t[1]), 2 * math.pi * float(t[2]))
+            a = torch.as_tensor(tilt, dtype=a.dtype) @ a
     return a.to(device)
 
 
