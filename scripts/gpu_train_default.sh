@@ -34,10 +34,10 @@ for split in train val test; do
     # a tier "COUNT:GAUSSIANS:clean" makes its objects as `pixie convert` writes a mesh (`generate --clean`);
     # "COUNT:GAUSSIANS:capture|clean:CLASS,CLASS" draws only those classes (a tier that leans on a few)
     IFS=: read -r n g look only <<<"$tier"
-    kind=""; [ "$look" = clean ] && kind="--clean"
-    [ -n "${only:-}" ] && kind="$kind --classes $only"
+    gen_args=""; [ "$look" = clean ] && gen_args="--clean"
+    [ -n "${only:-}" ] && gen_args="$gen_args --classes $only"
     part="$DATA/parts/$split$k"
-    $P generate "$part" --count $n --split $split --seed $(( SEED * 100 + k )) --workers $WORKERS --gaussians $g $kind -q --force \
+    $P generate "$part" --count $n --split $split --seed $(( SEED * 100 + k )) --workers $WORKERS --gaussians $g $gen_args -q --force \
       >>"$LOG" 2>&1 || { say "generate $split tier $tier failed"; exit 1; }
     parts+=("$part"); k=$((k + 1))
   done

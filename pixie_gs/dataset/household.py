@@ -273,21 +273,22 @@ def _donut(rng: np.random.Generator, crust: tuple[float, float, float]) -> tuple
     iced = rng.random() < 0.7
     sprinkles = 0
     if iced:
-        top = trimesh.creation.torus(R, tube * 1.04, major_sections=32, minor_sections=16)
-        top.apply_translation([0, 0, tube * 1.04])  # 4 % thicker than the ring, bottom level with it: a shell over it
+        ice = tube * 1.04  # icing tube radius (m): 4 % thicker than the ring, bottom level with it: a shell
+        top = trimesh.creation.torus(R, ice, major_sections=32, minor_sections=16)
+        top.apply_translation([0, 0, ice])
         keep = top.vertices[:, 2] > tube * rng.uniform(0.3, 1.3)  # from the top third to most of the ring
         faces = top.faces[keep[top.faces].all(1)]
         pieces.append(Piece("dough", trimesh.Trimesh(top.vertices, faces, process=False),
                             jitter(rng, pick(rng, ICING), 0.05), 0.08, weight=1.5))
         if rng.random() < 0.5:
             sprinkles = int(np.exp(rng.uniform(np.log(40), np.log(1500))))  # sparse to a dense coat (a real one)
-            t_ice = tube * 1.04  # sprinkles anywhere on the icing's upper band (sin φ > 0.44), 2 mm above it
+            lift = ice + 0.002  # sprinkles anywhere on the icing's upper band (sin φ > 0.44), 2 mm above it
             colours = [pick(rng, SPRINKLES) for _ in range(int(rng.integers(1, 4)))]
             groups: list[list[trimesh.Trimesh]] = [[] for _ in colours]
             for k in range(sprinkles):
                 theta, phi = rng.uniform(0, 2 * np.pi), rng.uniform(0.46, np.pi - 0.46)
-                rho = R + (t_ice + 0.002) * np.cos(phi)
-                p = np.array([rho * np.cos(theta), rho * np.sin(theta), t_ice + (t_ice + 0.002) * np.sin(phi)])
+                rho = R + lift * np.cos(phi)
+                p = np.array([rho * np.cos(theta), rho * np.sin(theta), ice + lift * np.sin(phi)])
                 a = rng.uniform(0, 2 * np.pi)
                 half = rng.uniform(0.002, 0.004) * np.array([np.cos(a), np.sin(a), 0.0])
                 groups[k % len(colours)].append(tapered_segment(p - half, p + half, 0.0012, 0.0012, 5))
