@@ -7,6 +7,7 @@ from ..progress import progress
 from ..transfer import nearest_voxel_values
 from .batch import build_batch
 from .checkpoint import LoadedModel
+from .label_floor import split_floor
 from .metrics import MetricAccumulator
 from .predict import grid_channel_names, run_model
 
@@ -36,12 +37,16 @@ def evaluate_store(loaded: LoadedModel, store, batch_size: int = 4, per_gaussian
 
 def evaluate_split(loaded: LoadedModel, data_dir: str | Path, split: str = "test", device: str = "cpu",
                    limit: int | None = None, workers: int = 1, batch_size: int = 4) -> dict:
-    """Load `split` of `data_dir` and evaluate `loaded` on it."""
+    """Load `split` of `data_dir` and evaluate `loaded` on it; with the split's label floor (the MSE no
+    model can remove: model/label_floor.py) when its records match the installed class table."""
     from .data import DeviceStore, load_split
 
     records, _ = load_split(data_dir, split, list(loaded.features.extra_names), limit, workers)
     store = DeviceStore(records, device)
     summary = evaluate_store(loaded, store, batch_size)
+    floor = split_floor(data_dir, split, limit)
+    if floor is not None:
+        summary["label_floor"] = floor
     summary["split"] = split
     summary["checkpoint"] = loaded.path
     return summary

@@ -84,6 +84,11 @@ def format_table(summary: dict) -> str:
             s = summary[unit]
             lines.append(f"{unit:<10}{s['count']:>12}{s['accuracy']:>10.4f}{s['mse_log_E']:>10.4f}"
                          f"{s['mse_nu']:>10.4f}{s['mse_log_rho']:>10.4f}{s['mse_avg']:>10.4f}")
+    floor = summary.get("label_floor")
+    if floor:
+        lines.append(f"{'floor':<10}{'':>12}{'':>10}{floor['floor_log_E']:>10.4f}{floor['floor_nu']:>10.4f}"
+                     f"{floor['floor_log_rho']:>10.4f}{floor['floor_avg']:>10.4f}")
+        lines.append("  (floor: the labels' own spread, drawn at random within each part's range: the expected MSE of the best possible prediction)")
     for unit in ("voxel", "gaussian"):
         if unit in summary:
             lines.append(f"per-class accuracy ({unit}, by true material):")
@@ -91,7 +96,9 @@ def format_table(summary: dict) -> str:
                 lines.append(f"  {name:<14}{s['count']:>12}{s['accuracy']:>10.4f}")
     if "by_object_class" in summary:
         lines.append("per object category (per Gaussian):")
-        lines.append(f"  {'category':<14}{'gaussians':>12}{'mat.acc':>10}{'avg mse':>10}")
+        floors = (floor or {}).get("by_object_class", {})
+        lines.append(f"  {'category':<14}{'gaussians':>12}{'mat.acc':>10}{'avg mse':>10}" + (f"{'floor':>10}" if floors else ""))
         for name, s in summary["by_object_class"].items():
-            lines.append(f"  {name:<14}{s['count']:>12}{s['accuracy']:>10.4f}{s['mse_avg']:>10.4f}")
+            tail = f"{floors[name]:>10.4f}" if name in floors else ""
+            lines.append(f"  {name:<14}{s['count']:>12}{s['accuracy']:>10.4f}{s['mse_avg']:>10.4f}{tail}")
     return "\n".join(lines)
