@@ -56,9 +56,8 @@ def test_tree_in_wind_top_moves_downwind_pot_stays(tmp_path):
     assert facts["anchored_max_motion_m"] == 0.0  # the pot does not move at all
     # wind along +x bends the top: 1.5 % of the height. It was 5 %, set on r30, whose visible trunk read
     # 2e7 Pa (top 7 cm downwind); r36 read it 5e7 Pa (2.5 cm here), r39 3.6e8 Pa (3.6 cm: the crown sways),
-    # its label is 3.5e9 Pa, and a trunk
-    # at the label would bend millimetres (docs/model_card.md): the motion is the soft crown's and the
-    # trunk's, and 1.5 % still fails a gust that does nothing
+    # its label is 3.5e9 Pa, and a trunk at the label would bend millimetres (docs/model_card.md): the
+    # motion is the soft crown's and the trunk's, and 1.5 % still fails a gust that does nothing
     assert facts["top_max_downwind_m"] > 0.015 * facts["tree_height_m"]
     # gravity is on: the tree stands under its own weight (the paper's 2e6 Pa trunk sank by ~60 % in 3 s)
     assert facts["top_sink_last_m"] < 0.1 * facts["tree_height_m"]
