@@ -40,8 +40,8 @@ class TrainConfig:
     class_weight: float = 1.0
     seed: int = 0
     augment: bool = True
-    tilt_max_deg: float = 0.0  # augmentation: tilt a share of objects by up to this angle (AugmentConfig)
-    tilt_share: float = 0.5
+    tilt_max_deg: float = AugmentConfig.tilt_max_deg  # augmentation: tilt a share of objects by up to this angle
+    tilt_share: float = AugmentConfig.tilt_share      # (degrees; AugmentConfig holds the defaults)
     workers: int = 1
     limit_train: int | None = None
     limit_val: int | None = None
