@@ -49,8 +49,7 @@ def split_floor(data_dir: str | Path, split: str = "test", limit: int | None = N
     from ..errors import read_json_file
 
     table = load_class_table() if table is None else table
-    total, count = np.zeros(3), 0
-    by_class: dict[str, list] = {}
+    by_class: dict[str, list] = {}  # category -> [sum of count × floor (3,), Gaussian count]
     for path in list_objects(data_dir, split)[: limit or None]:
         record = read_json_file(Path(path).with_suffix(".json"), "a label record")
         spec = table.get(record.get("class"))
@@ -63,16 +62,14 @@ def split_floor(data_dir: str | Path, split: str = "test", limit: int | None = N
                 return None
             if not _drawn_from(spec_part, part):
                 return None
-            floor = part_floor(spec_part)
             n = int(part.get("count", 0))
-            total += floor * n
-            count += n
             sums = by_class.setdefault(spec.name, [np.zeros(3), 0])
-            sums[0] += floor * n
+            sums[0] += part_floor(spec_part) * n
             sums[1] += n
+    count = sum(n for _, n in by_class.values())
     if count == 0:
         return None
-    mean = total / count
+    mean = sum(s for s, _ in by_class.values()) / count
     return {"floor_log_E": float(mean[0]), "floor_nu": float(mean[1]), "floor_log_rho": float(mean[2]),
             "floor_avg": float(mean.mean()),
             "by_object_class": {k: float((s / max(n, 1)).mean()) for k, (s, n) in sorted(by_class.items())}}
