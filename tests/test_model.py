@@ -399,6 +399,7 @@ def test_cpu_inference_matches_a_float64_evaluation():
     (dict(multipliers=[1, 2], res_blocks=2, dropout=0.2), 2, 0.5),  # a batch runs sample by sample
     (dict(base_channels=8, projector_hidden=12, projector_out=12), 1, 0.0),  # no empty voxel at all
     (dict(base_channels=8), 1, 1.0),  # nothing but empty space
+    (dict(base_channels=8, context_width=16), 2, 0.7),  # with the object-context branch
 ])
 def test_fast_cpu_forward_is_the_module_forward(config, batch, empty):
     """`infer.fast_forward` (oneDNN convolutions, distinct-row projector, in-place ops) = `model(x)`."""
@@ -473,3 +474,56 @@ def test_train_rejects_a_tilt_outside_its_range(tmp_path, capsys, flag, value):
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 1 and len(err) == 1 and "--tilt-deg must be within 0–90" in err[0], (rc, err)
     assert not (tmp_path / "m.pt").exists()
+
+
+def test_object_context_adds_one_vector_per_object_that_depends_on_the_whole_grid():
+    """The branch adds, at the bottleneck, the same vector to every voxel of an object: a function of the
+    whole grid (an input far from a voxel changes it), different for each object of a batch."""
+    torch.manual_seed(3)
+    model = MaterialUNet(ModelConfig(input_channels=NAMES, base_channels=8, multipliers=[1, 2], context_width=8))
+    with torch.no_grad():
+        for p in model.parameters():
+            p.normal_(0.0, 0.3)
+    model.eval()
+    added = []
+    model.context.register_forward_hook(lambda module, args, out: added.append(out - args[0]))
+    x = torch.zeros(2, len(NAMES), 16, 16, 16)
+    x[:, :, 2:5, 2:5, 2:5] = 1.0
+    x[1, :, 11:14, 11:14, 11:14] = 2.0  # the second object differs only far from the first block
+    with torch.no_grad():
+        model(x)
+    term = added[0]  # (2, C, 8, 8, 8)
+    assert torch.allclose(term, term[:, :, :1, :1, :1].expand_as(term), atol=1e-5)  # one vector per object
+    assert float((term[0] - term[1]).abs().max()) > 1e-3
+
+
+def test_init_grows_a_checkpoint_by_a_context_branch_with_the_same_outputs(tmp_path):
+    """`pixie train --init OLD --context-width W`: OLD's weights, the new branch at zero, so the grown
+    network computes exactly what OLD did; any other change of configuration is refused."""
+    from pixie_gs.model.train import load_init_weights
+
+    torch.manual_seed(4)
+    old_config = ModelConfig(input_channels=NAMES, base_channels=8, multipliers=[1, 2])
+    old = MaterialUNet(old_config).eval()
+    with torch.no_grad():
+        for p in old.parameters():
+            p.normal_(0.0, 0.3)
+    new_config = ModelConfig(input_channels=NAMES, base_channels=8, multipliers=[1, 2], context_width=16)
+    grown = MaterialUNet(new_config).eval()
+    assert load_init_weights(grown, old, old_config, new_config, "old.pt") is True
+    x = torch.randn(2, len(NAMES), 16, 16, 16)
+    with torch.no_grad():
+        for a, b in zip(old(x), grown(x)):
+            assert torch.equal(a, b)
+    assert load_init_weights(MaterialUNet(old_config), old, old_config, old_config, "old.pt") is False
+    with pytest.raises(InputError, match="different network"):
+        wider = ModelConfig(input_channels=NAMES, base_channels=16, multipliers=[1, 2], context_width=16)
+        load_init_weights(MaterialUNet(wider), old, old_config, wider, "old.pt")
+    with pytest.raises(InputError, match="different network"):  # a branch is never dropped
+        load_init_weights(MaterialUNet(old_config), grown, new_config, old_config, "grown.pt")
+    path = tmp_path / "grown.pt"  # and the grown network survives a checkpoint round trip
+    save_checkpoint(path, grown, SPEC, {})
+    loaded = load_checkpoint(path)
+    assert loaded.config.context_width == 16
+    with torch.no_grad():
+        assert torch.equal(loaded.model(x)[1], grown(x)[1])

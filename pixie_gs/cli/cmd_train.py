@@ -33,6 +33,9 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--base-channels", type=int, default=16, help="U-Net width at full resolution (default 16)")
     p.add_argument("--multipliers", default="1,2,4", help="U-Net width multipliers per level, e.g. 1,2,4")
     p.add_argument("--res-blocks", type=int, default=1, help="residual blocks per U-Net level (default 1)")
+    p.add_argument("--context-width", type=int, default=0, metavar="W",
+                   help="hidden width of an object-context branch: every voxel also sees a summary of the whole "
+                   "grid (default 0: none). With --init from a checkpoint without one, it starts at zero")
     p.add_argument("--resolution", type=int, default=64, help="grid cells per side (divisible by 2^(levels-1))")
     p.add_argument("--no-augment", action="store_true", help="no yaw/flip/scale/colour augmentation")
     p.add_argument("--tilt-deg", type=float, default=0.0, metavar="DEG",
@@ -68,6 +71,8 @@ def run(args: argparse.Namespace) -> int:
     for name in ("epochs", "batch_size", "base_channels", "res_blocks", "workers", "build_objects"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             raise InputError(f"--{name.replace('_', '-')} must be ≥ 1")
+    if args.context_width < 0:
+        raise InputError("--context-width must be ≥ 0")
     if not (0.0 <= args.tilt_deg <= 90.0 and 0.0 <= args.tilt_share <= 1.0):
         raise InputError("--tilt-deg must be within 0–90 and --tilt-share within 0–1")
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, time_budget_s=args.time_budget_s,
@@ -75,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
                       tilt_max_deg=args.tilt_deg, tilt_share=args.tilt_share,
                       limit_train=args.limit_train, limit_val=args.limit_val, input_mode=args.inputs,
                       init_from=args.init, objects_per_build=args.build_objects,
-                      model={"base_channels": args.base_channels, "multipliers": mults, "res_blocks": args.res_blocks},
+                      model={"base_channels": args.base_channels, "multipliers": mults, "res_blocks": args.res_blocks,
+                             "context_width": args.context_width},
                       features={"resolution": args.resolution})
     ctx = distributed.context_from_env()  # several processes when started by torchrun
     device = distributed.join(ctx, resolve_torch_device(args.device))

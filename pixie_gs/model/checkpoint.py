@@ -184,6 +184,7 @@ def _validate(payload: object, path: str | Path) -> tuple[ModelConfig, FeatureSp
     ints = {}
     for key, lo, hi in (("projector_hidden", *CHANNELS_RANGE), ("projector_out", *CHANNELS_RANGE),
                         ("base_channels", *CHANNELS_RANGE), ("res_blocks", 0, MAX_RES_BLOCKS),
+                        ("context_width", 0, CHANNELS_RANGE[1]),
                         ("num_classes", NUM_CLASSES, NUM_CLASSES), ("num_physical", 3, 3)):
         ints[key] = integer({key: cfg.get(key, getattr(defaults, key))}, key, lo, hi, "config")
     dropout = number({"dropout": cfg.get("dropout", 0.0)}, "dropout", 0.0, 0.99, "config")

@@ -89,6 +89,20 @@ def training_label_ranges(records) -> dict[str, list[float]]:
             "log10_density_kg_m3": pair(np.log10(r_lo), np.log10(r_hi))}
 
 
+def load_init_weights(net, init_model, init_config: ModelConfig, config: ModelConfig, path) -> bool:
+    """Copy a checkpoint's weights into `net` (fine-tuning). The configs must match, except that `net` may
+    add an object-context branch the checkpoint lacks (it starts at zero: same outputs). Returns whether
+    it did."""
+    grows = init_config.context_width == 0 < config.context_width
+    if {**init_config.to_dict(), "context_width": config.context_width} != config.to_dict() or (
+            init_config.context_width != config.context_width and not grows):
+        raise InputError("--init checkpoint has a different network configuration", path)
+    result = net.load_state_dict(init_model.state_dict(), strict=not grows)
+    if grows and (result.unexpected_keys or any(not k.startswith("context.") for k in result.missing_keys)):
+        raise InputError("--init checkpoint's weights do not fit the network", path)
+    return grows
+
+
 def batch_loss(model, batch: Batch, counts: bool, names: list[str], inputs: list[str], class_weight: float,
                use_amp: bool, ctx: DistContext = SINGLE):
     """Run the model on this rank's share of a global batch (see step_batches.py): returns (loss to
@@ -167,10 +181,9 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         from .checkpoint import load_checkpoint
 
         init = load_checkpoint(cfg.init_from, "cpu")
-        if init.config.to_dict() != mcfg.to_dict():
-            raise InputError("--init checkpoint has a different network configuration", cfg.init_from)
-        net.load_state_dict(init.model.state_dict())
-        stage(f"starting from the weights of {cfg.init_from}")
+        grown = load_init_weights(net, init.model, init.config, mcfg, cfg.init_from)
+        stage(f"starting from the weights of {cfg.init_from}"
+              + ("; the new object-context branch starts at zero (the same outputs)" if grown else ""))
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     history: list[dict] = []
     start_epoch, step, elapsed_before, best = 0, 0, 0.0, -math.inf

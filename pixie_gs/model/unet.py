@@ -31,6 +31,7 @@ class ModelConfig:
     multipliers: list[int] = field(default_factory=lambda: [1, 2, 4])
     res_blocks: int = 1
     dropout: float = 0.0
+    context_width: int = 0  # hidden width of the object-context branch at the bottleneck (0: none)
     num_classes: int = NUM_CLASSES
     num_physical: int = 3
 
@@ -65,6 +66,26 @@ class ResBlock(nn.Module):
         return self.skip(x) + self.f(x)
 
 
+class ObjectContext(nn.Module):
+    """h + MLP(mean and max of h over the whole grid), broadcast to every voxel.
+
+    The U-Net's convolutions see a neighbourhood; which object a voxel belongs to (a cushion or a ball, a
+    book or a box) is a property of the whole shape. This branch gives every voxel a summary of the whole
+    grid. Its last layer starts at zero, so a network grown from a checkpoint without it computes exactly
+    what that checkpoint did until training moves it (`pixie train --init OLD --context-width W`).
+    """
+
+    def __init__(self, channels: int, hidden: int) -> None:
+        super().__init__()
+        self.mlp = nn.Sequential(nn.Linear(2 * channels, hidden), nn.SiLU(), nn.Linear(hidden, channels))
+        nn.init.zeros_(self.mlp[-1].weight)
+        nn.init.zeros_(self.mlp[-1].bias)
+
+    def forward(self, h: torch.Tensor) -> torch.Tensor:
+        pooled = torch.cat([h.mean(dim=(2, 3, 4)), h.amax(dim=(2, 3, 4))], dim=1)
+        return h + self.mlp(pooled)[:, :, None, None, None].to(h.dtype)
+
+
 class MaterialUNet(nn.Module):
     """(B, C_in, N, N, N) feature grid → (logits (B, 8, N³…), physical (B, 3, N³…)); N divisible by 2^(levels−1)."""
 
@@ -91,6 +112,7 @@ class MaterialUNet(nn.Module):
             if level < len(widths) - 1:
                 self.downsamples.append(nn.Conv3d(w, w, 3, stride=2, padding=1))
         self.middle = ResBlock(prev, prev, config.dropout)
+        self.context = ObjectContext(prev, config.context_width) if config.context_width > 0 else None
         self.upsamples = nn.ModuleList()
         self.up_blocks = nn.ModuleList()
         for level in reversed(range(len(widths) - 1)):
@@ -112,6 +134,8 @@ class MaterialUNet(nn.Module):
                 skips.append(h)
                 h = self.downsamples[level](h)
         h = self.middle(h)
+        if self.context is not None:
+            h = self.context(h)
         for up, blocks in zip(self.upsamples, self.up_blocks):
             h = nn.functional.interpolate(up(h), scale_factor=2, mode="nearest")
             h = blocks(h + skips.pop())  # additive skip: same information, half the convolution cost
