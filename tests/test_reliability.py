@@ -134,6 +134,10 @@ def _damage(kind: str):
         del p[kind.split()[1]]
     elif kind == "negative channels":
         p["config"]["base_channels"] = -4
+    elif kind == "negative context width":
+        p["config"]["context_width"] = -1
+    elif kind == "context width without its weights":
+        p["config"]["context_width"] = 64
     elif kind == "resolution 0":
         p["features"]["resolution"] = 0
     elif kind == "resolution 4096":
@@ -154,7 +158,8 @@ def _damage(kind: str):
 
 
 @pytest.mark.parametrize("kind", ["nan weight", "inf weight", "missing config", "missing features",
-                                  "missing state_dict", "negative channels", "resolution 0", "resolution 4096",
+                                  "missing state_dict", "negative channels", "negative context width",
+                                  "context width without its weights", "resolution 0", "resolution 4096",
                                   "channels as text", "features as list", "huge width", "weights not tensors"])
 def test_damaged_checkpoint_payloads_are_refused_in_one_line(tmp_path, capsys, kind):
     import torch
