@@ -48,7 +48,7 @@ def fast_forward(model: MaterialUNet, x: torch.Tensor) -> tuple[torch.Tensor, to
             h = _conv(h, model.downsamples[level])
     h = _res_block(model.middle, h)
     if model.context is not None:
-        h = model.context(h)  # a few hundred numbers: the module itself (adds in place of nothing)
+        h = model.context(h)  # pooled over the 16³ bottleneck: cheap, so the module itself
     for up, blocks in zip(model.upsamples, model.up_blocks):
         h = _blocks(blocks, _add_upsampled(skips.pop(), _conv(h, up)))
     norm, act = model.out_norm

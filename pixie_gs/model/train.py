@@ -94,8 +94,9 @@ def load_init_weights(net, init_model, init_config: ModelConfig, config: ModelCo
     add an object-context branch the checkpoint lacks (it starts at zero: same outputs). Returns whether
     it did."""
     grows = init_config.context_width == 0 < config.context_width
-    if {**init_config.to_dict(), "context_width": config.context_width} != config.to_dict() or (
-            init_config.context_width != config.context_width and not grows):
+    same_width = init_config.context_width == config.context_width
+    same_otherwise = {**init_config.to_dict(), "context_width": config.context_width} == config.to_dict()
+    if not same_otherwise or not (same_width or grows):
         raise InputError("--init checkpoint has a different network configuration", path)
     result = net.load_state_dict(init_model.state_dict(), strict=not grows)
     if grows and (result.unexpected_keys or any(not k.startswith("context.") for k in result.missing_keys)):

@@ -6,6 +6,7 @@ dropout → zero-initialised Conv3d(3); stride-2 conv down, nearest-upsample + c
 connections. For CPU speed the up-conv runs before the upsample and skips are added, not
 concatenated. The projector uses 1×1×1 convolutions (a per-voxel MLP; the U-Net supplies the
 spatial context), and width/depth are configurable so the shipped network fits CPU inference.
+Optional (`context_width` > 0): an object-context branch at the bottleneck (`ObjectContext`).
 Outputs: 8 class logits (ids 0–6 and 7 = background) and 3 normalised values
 (log10 E, ν, log10 ρ mapped to [-1, 1] by `pixie_gs.materials.normalize_physical`).
 """
