@@ -12,6 +12,7 @@ material spread over it. No speed target: a correctness benchmark; the baseline 
 
     python benchmarks/bench_pairs.py                       # 26 categories × 2 objects → 26 pairs, ~2 min on 2 cores
     python benchmarks/bench_pairs.py --per-class 1 --json pairs.json
+    python benchmarks/bench_pairs.py --picture docs/pairs_example.png   # up to 4 pairs with an object taken over
 """
 from __future__ import annotations
 
@@ -63,6 +64,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=88, help="test-split dataset seed of the objects")
     ap.add_argument("--device", default="cpu", help="torch device for the model (cpu, cuda)")
     ap.add_argument("--json", default=None, help="also write every figure as JSON")
+    ap.add_argument("--picture", default=None, metavar="PNG",
+                    help="also draw up to 4 pairs where an object was taken over: RGB, true and predicted class")
     args = ap.parse_args()
 
     from pixie_gs.dataset.assemble import build_object
@@ -91,7 +94,7 @@ def main() -> None:
         pairs.append((i, j))
 
     t0 = time.perf_counter()
-    rows = []
+    rows, drawn = [], []
     for i, j in pairs:
         (name_a, a), (name_b, b) = objects[i], objects[j]
         joined = side_by_side(a, b, rng)
@@ -105,6 +108,9 @@ def main() -> None:
                          "alone": accuracy(alone, cloud.get("material_id")),
                          "pair_plain": accuracy(plain[part], truth[part]),
                          "pair_prepared": accuracy(prepared[part], truth[part])})
+        if len(drawn) < 4 and any(r["alone"] >= TAKEN_OVER_ALONE and r["pair_plain"] < TAKEN_OVER_PAIR
+                                  for r in rows[-2:]):
+            drawn.append((f"{name_a} + {name_b}", joined, truth, plain))
         print(f"[{time.perf_counter() - t0:5.0f} s] {name_a:<18} + {name_b:<18} "
               f"alone {rows[-2]['alone']:.2f}/{rows[-1]['alone']:.2f}  pair {rows[-2]['pair_plain']:.2f}/"
               f"{rows[-1]['pair_plain']:.2f}  prepared {rows[-2]['pair_prepared']:.2f}/{rows[-1]['pair_prepared']:.2f}",
@@ -125,6 +131,25 @@ def main() -> None:
     print(f"total {time.perf_counter() - t0:.0f} s")
     if args.json:
         Path(args.json).write_text(json.dumps({"summary": summary, "objects": rows}, indent=1))
+    if args.picture and drawn:
+        draw(drawn, args.picture)
+
+
+def draw(drawn: list, out: str) -> None:
+    """One row per pair: base colour, true material class, class predicted on the pair (plain path)."""
+    from pixie_gs.materials import MATERIAL_COLORS
+    from pixie_gs.render import contact_sheet, render_points, save_png
+
+    images, labels = [], []
+    for title, cloud, truth, predicted in drawn:
+        bounds = cloud.bounds()
+        agree = float(np.mean(predicted == truth))
+        for colours, label in ((cloud.rgb(), f"{title}: RGB"), (MATERIAL_COLORS[truth], "true material"),
+                               (MATERIAL_COLORS[predicted], f"predicted in the pair ({agree:.0%} right)")):
+            images.append(render_points(cloud.means, colours, size=(260, 200), bounds=bounds))
+            labels.append(label)
+    save_png(contact_sheet(images, labels, columns=3), out)
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":
