@@ -137,17 +137,15 @@ def main() -> None:
 
 def draw(drawn: list, out: str) -> None:
     """One row per pair: base colour, true material class, class predicted on the pair (plain path)."""
-    from pixie_gs.materials import MATERIAL_COLORS
-    from pixie_gs.render import contact_sheet, render_points, save_png
+    from pixie_gs.render import contact_sheet, material_panels, save_png
 
     images, labels = [], []
     for title, cloud, truth, predicted in drawn:
-        bounds = cloud.bounds()
         agree = float(np.mean(predicted == truth))
-        for colours, label in ((cloud.rgb(), f"{title}: RGB"), (MATERIAL_COLORS[truth], "true material"),
-                               (MATERIAL_COLORS[predicted], f"predicted in the pair ({agree:.0%} right)")):
-            images.append(render_points(cloud.means, colours, size=(260, 200), bounds=bounds))
-            labels.append(label)
+        row_images, row_labels = material_panels(cloud, truth, predicted, title,
+                                                 f"predicted in the pair ({agree:.0%} right)", size=(260, 200))
+        images += row_images
+        labels += row_labels
     save_png(contact_sheet(images, labels, columns=3), out)
     print(f"wrote {out}")
 

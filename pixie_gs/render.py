@@ -149,6 +149,18 @@ def render_points(means: np.ndarray, rgb: np.ndarray, *, size: tuple[int, int] =
     return image
 
 
+def material_panels(cloud, true_id: np.ndarray, predicted_id: np.ndarray, title: str, predicted_label: str,
+                    size: tuple[int, int] = (220, 220)) -> tuple[list[np.ndarray], list[str]]:
+    """Three views of one splat for a contact sheet: base colour, true and predicted material class
+    (`materials.MATERIAL_COLORS`), labelled `title: RGB`, `true material` and `predicted_label`."""
+    from .materials import MATERIAL_COLORS
+
+    bounds = cloud.bounds()
+    images = [render_points(cloud.means, colours, size=size, bounds=bounds)
+              for colours in (cloud.rgb(), MATERIAL_COLORS[true_id], MATERIAL_COLORS[predicted_id])]
+    return images, [f"{title}: RGB", "true material", predicted_label]
+
+
 def contact_sheet(images: list[np.ndarray], labels: list[str], columns: int,
                   background: tuple[int, int, int] = (255, 255, 255)) -> np.ndarray:
     """Tile images (H,W,3 uint8) into a grid, each with its text label above it (uint8 image).

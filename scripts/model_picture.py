@@ -14,8 +14,7 @@ from pixie_gs.annotate import annotate_cloud
 from pixie_gs.dataset.assemble import build_object
 from pixie_gs.dataset.generate import object_seed
 from pixie_gs.dataset.labels import load_class_table
-from pixie_gs.materials import MATERIAL_COLORS
-from pixie_gs.render import contact_sheet, render_points, save_png
+from pixie_gs.render import contact_sheet, material_panels, save_png
 from pixie_gs.splat import LABEL_ATTRIBUTES
 
 CLASSES = ["tree", "flowers", "grass", "soda_cans", "sand", "snow_mud"]
@@ -33,11 +32,9 @@ def main(out: str) -> None:
         bare.property_order = [p for p in bare.property_order if p not in LABEL_ATTRIBUTES]
         pred_id = annotate_cloud(bare, device="cpu").get_materials()[0]
         acc = float(np.mean(pred_id == true_id))
-        bounds = cloud.bounds()
-        for colours, label in ((cloud.rgb(), f"{name}: RGB"), (MATERIAL_COLORS[true_id], "true material"),
-                               (MATERIAL_COLORS[pred_id], f"predicted ({acc:.1%} agree)")):
-            images.append(render_points(cloud.means, colours, size=(220, 220), bounds=bounds))
-            labels.append(label)
+        row_images, row_labels = material_panels(cloud, true_id, pred_id, name, f"predicted ({acc:.1%} agree)")
+        images += row_images
+        labels += row_labels
     save_png(contact_sheet(images, labels, columns=3), out)
     print(f"wrote {out}")
 
