@@ -57,6 +57,11 @@ def accuracy(predicted: np.ndarray, truth: np.ndarray) -> float:
     return float((np.asarray(predicted) == np.asarray(truth)).mean())
 
 
+def taken_over(row: dict, key: str) -> bool:
+    """Right alone and mostly wrong in the pair (`key`: pair_plain or pair_prepared)."""
+    return row["alone"] >= TAKEN_OVER_ALONE and row[key] < TAKEN_OVER_PAIR
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--per-class", type=int, default=2, help="objects per category (pairs: half of all objects)")
@@ -102,14 +107,13 @@ def main() -> None:
         n_a = len(a)
         plain, _ = predict(joined, False, args.device)
         prepared, _ = predict(joined, True, args.device)
-        for name, cloud, part in ((name_a, a, slice(0, n_a)), (name_b, b, slice(n_a, None))):
+        for name, partner, cloud, part in ((name_a, name_b, a, slice(0, n_a)), (name_b, name_a, b, slice(n_a, None))):
             alone, _ = predict(cloud, False, args.device)
-            rows.append({"category": name, "partner": name_b if name == name_a else name_a,
+            rows.append({"category": name, "partner": partner,
                          "alone": accuracy(alone, cloud.get("material_id")),
                          "pair_plain": accuracy(plain[part], truth[part]),
                          "pair_prepared": accuracy(prepared[part], truth[part])})
-        if len(drawn) < 4 and any(r["alone"] >= TAKEN_OVER_ALONE and r["pair_plain"] < TAKEN_OVER_PAIR
-                                  for r in rows[-2:]):
+        if len(drawn) < 4 and any(taken_over(r, "pair_plain") for r in rows[-2:]):
             drawn.append((f"{name_a} + {name_b}", joined, truth, plain))
         print(f"[{time.perf_counter() - t0:5.0f} s] {name_a:<18} + {name_b:<18} "
               f"alone {rows[-2]['alone']:.2f}/{rows[-1]['alone']:.2f}  pair {rows[-2]['pair_plain']:.2f}/"
@@ -120,7 +124,7 @@ def main() -> None:
     for key in ("alone", "pair_plain", "pair_prepared"):
         summary[f"mean_{key}"] = float(np.mean([r[key] for r in rows]))
     for key in ("pair_plain", "pair_prepared"):
-        summary[f"taken_over_{key}"] = sum(r["alone"] >= TAKEN_OVER_ALONE and r[key] < TAKEN_OVER_PAIR for r in rows)
+        summary[f"taken_over_{key}"] = sum(taken_over(r, key) for r in rows)
     print(f"\n{len(rows)} objects in {len(pairs)} pairs, {args.gaussians} Gaussians each; share of each object's "
           f"Gaussians given their true material class (mean over objects)")
     print(f"  alone (baseline)     {summary['mean_alone']:.3f}")
