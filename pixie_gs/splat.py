@@ -293,6 +293,27 @@ class SplatCloud:
             source=self.source, source_format=self.source_format, comments=list(self.comments),
         )
 
+    def with_sh_degree(self, degree: int) -> "SplatCloud":
+        """A copy with SH degree raised to `degree` by zero coefficients (the same colours from every
+        view), e.g. to join a degree-0 object with a degree-3 one. Lowering a degree is refused: it
+        would drop view-dependent colour."""
+        if degree not in _VALID_REST_COUNTS.values():
+            raise ValueError(f"SH degree must be 0-3 (got {degree})")
+        if degree < self.sh_degree:
+            raise ValueError(f"cannot lower SH degree {self.sh_degree} to {degree}")
+        out = self.copy()
+        if degree == self.sh_degree:
+            return out
+        old, new = self.sh_rest.shape[1] // 3, (degree + 1) ** 2 - 1  # coefficients per colour channel
+        rest = np.zeros((len(self), 3, new), np.float32)
+        rest[:, :, :old] = self.sh_rest.reshape(len(self), 3, old)  # channel-major: all R, then G, then B
+        out.sh_rest = rest.reshape(len(self), 3 * new)
+        order = [name for name in out.property_order if not name.startswith("f_rest_")]
+        at = order.index("f_dc_2") + 1 if "f_dc_2" in order else len(order)
+        order[at:at] = [f"f_rest_{i}" for i in range(3 * new)]
+        out.property_order = order
+        return out
+
     @staticmethod
     def concatenate(clouds: list["SplatCloud"]) -> "SplatCloud":
         """Join clouds with the same SH degree; extras present in every cloud are kept."""

@@ -32,9 +32,14 @@ for split in train val test; do
   parts=(); k=0
   for tier in $tiers; do
     # a tier "COUNT:GAUSSIANS:clean" makes its objects as `pixie convert` writes a mesh (`generate --clean`);
-    # "COUNT:GAUSSIANS:capture|clean:CLASS,CLASS" draws only those classes (a tier that leans on a few)
+    # "COUNT:GAUSSIANS:capture|clean:CLASS,CLASS" draws only those classes (a tier that leans on a few);
+    # "COUNT:GAUSSIANS:pairs|clean-pairs" makes every object a pair (`generate --pairs 1`, half the Gaussians each)
     IFS=: read -r n g look only <<<"$tier"
-    gen_args=""; [ "$look" = clean ] && gen_args="--clean"
+    gen_args=""
+    case "${look:-capture}" in
+      capture) ;; clean) gen_args="--clean" ;; pairs) gen_args="--pairs 1" ;; clean-pairs) gen_args="--clean --pairs 1" ;;
+      *) say "unknown tier look '$look' in '$tier' (capture, clean, pairs, clean-pairs)"; exit 1 ;;
+    esac
     [ -n "${only:-}" ] && gen_args="$gen_args --classes $only"
     part="$DATA/parts/$split$k"
     $P generate "$part" --count $n --split $split --seed $(( SEED * 100 + k )) --workers $WORKERS --gaussians $g $gen_args -q --force \

@@ -31,6 +31,9 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--clean", action="store_true",
                    help="objects exactly as `pixie convert` writes a mesh (one opacity, no texture, noise, "
                         "floaters or tilt) instead of capture-like ones")
+    p.add_argument("--pairs", type=float, default=0.0, metavar="SHARE",
+                   help="share of objects (0-1) stood beside a partner of another category, footprints "
+                        "touching, half the Gaussians each, like two things in one capture (default 0)")
     p.add_argument("--force", action="store_true", help="replace an existing split")
     p.set_defaults(func=run)
     return p
@@ -51,7 +54,8 @@ def run(args: argparse.Namespace) -> int:
     stage(f"generating {args.count} {args.split} objects into {args.out_dir} ({args.workers} workers)")
     split_dir = generate_split(args.out_dir, args.count, classes=classes, seed=args.seed, split=args.split,
                                workers=args.workers, n_gaussians=args.gaussians, table_path=args.table,
-                               force=args.force, realistic=not args.clean)
+                               force=args.force, realistic=not args.clean,
+                               pair_share=args.pairs)
     stage(f"wrote {split_dir}/index.json")
     if args.preview:
         shown = write_preview(args.out_dir, args.split, args.preview)

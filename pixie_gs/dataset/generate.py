@@ -4,6 +4,8 @@ Layout: OUT_DIR/<split>/<index:06d>_<class>.ply with a sidecar .json (the object
 and OUT_DIR/<split>/index.json listing every object. A split is written into a hidden temporary
 directory and renamed into place when complete, so a failed run leaves no partial split.
 Object i's seed depends only on (seed, split, i): the bytes do not depend on the worker count.
+With `pair_share` > 0, that share of the objects are pairs (dataset/pairs.py): the object and a partner
+of another category side by side, named OUT_DIR/<split>/<index:06d>_<class>+<partner>.ply.
 """
 from __future__ import annotations
 
@@ -21,10 +23,12 @@ from ..errors import InputError
 from ..progress import is_quiet, progress, set_quiet
 from .assemble import build_object
 from .labels import ClassSpec, load_class_table
+from .pairs import MIN_PAIR_GAUSSIANS, build_pair
 
 SPLITS = ("train", "val", "test")
 # Mixed into every object seed so that the splits never share a seed (see object_seed).
 SPLIT_SALT = {"train": 0x7261696E, "val": 0x76616C00, "test": 0x74657374}
+PAIR_SALT = 0x70616972  # the stream that decides which objects are pairs and with whom
 INDEX_NAME = "index.json"
 FORMAT_VERSION = 1
 
@@ -37,13 +41,28 @@ def object_seed(seed: int, split: str, index: int) -> int:
     return int(state[0]) << 32 | int(state[1])
 
 
+def partner_for_index(seed: int, split: str, index: int, classes: list[str], pair_share: float) -> str | None:
+    """The partner category of object `index` (another of `classes`), or None when it stands alone.
+
+    Drawn from its own stream (seed, split, index, PAIR_SALT), so objects that stand alone are the same
+    files with or without pairs elsewhere in the split, and a pair's partner does not depend on workers."""
+    if pair_share <= 0 or len(classes) < 2:
+        return None
+    rng = np.random.default_rng([int(seed), SPLIT_SALT[split], int(index), PAIR_SALT])
+    if rng.random() >= pair_share:
+        return None
+    own = class_for_index(index, classes)
+    others = [c for c in classes if c != own]
+    return others[int(rng.integers(len(others)))]
+
+
 def class_for_index(index: int, classes: list[str]) -> str:
     """Round-robin class order: every class gets ⌊N/k⌋ or ⌈N/k⌉ of N objects."""
     return classes[index % len(classes)]
 
 
-def object_stem(index: int, class_name: str) -> str:
-    return f"{index:06d}_{class_name}"
+def object_stem(index: int, class_name: str, partner: str | None = None) -> str:
+    return f"{index:06d}_{class_name}" + (f"+{partner}" if partner else "")
 
 
 @dataclass(frozen=True)
@@ -57,6 +76,7 @@ class ObjectTask:
     directory: str
     table_path: str | None
     realistic: bool = True
+    partner: str | None = None  # the partner's category: this object is a pair (dataset/pairs.py)
 
 
 _TABLE_CACHE: dict[str | None, dict[str, ClassSpec]] = {}
@@ -74,16 +94,23 @@ def write_object(task: ObjectTask) -> dict:
     was_quiet = is_quiet()
     set_quiet(True)  # per-piece bars (e.g. the converter's interior fill) would bury the object bar
     try:
-        cloud, record = build_object(spec, task.seed, task.n_gaussians, task.realistic)
+        if task.partner is None:
+            cloud, record = build_object(spec, task.seed, task.n_gaussians, task.realistic)
+        else:
+            partner = _table(task.table_path)[task.partner]
+            cloud, record = build_pair(spec, partner, task.seed, task.n_gaussians, task.realistic)
     finally:
         set_quiet(was_quiet)
-    stem = object_stem(task.index, task.class_name)
+    stem = object_stem(task.index, task.class_name, task.partner)
     directory = Path(task.directory)
     record = {"index": task.index, "file": f"{stem}.ply", **record}
     cloud.write(directory / f"{stem}.ply")
     (directory / f"{stem}.json").write_text(json.dumps(record, indent=1) + "\n")
-    return {"index": task.index, "class": task.class_name, "file": record["file"], "seed": task.seed,
-            "gaussians": record["gaussians"], "parts": [p["name"] for p in record["parts"]]}
+    entry = {"index": task.index, "class": task.class_name, "file": record["file"], "seed": task.seed,
+             "gaussians": record["gaussians"], "parts": [p["name"] for p in record["parts"]]}
+    if task.partner is not None:
+        entry["partner"] = task.partner
+    return entry
 
 
 def resolve_classes(table: dict[str, ClassSpec], names: list[str] | None) -> list[str]:
@@ -98,12 +125,14 @@ def resolve_classes(table: dict[str, ClassSpec], names: list[str] | None) -> lis
 
 def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None = None, seed: int = 0,
                    split: str = "train", workers: int = 1, n_gaussians: int = 50_000,
-                   table_path: str | Path | None = None, force: bool = False, realistic: bool = True) -> Path:
+                   table_path: str | Path | None = None, force: bool = False, realistic: bool = True,
+                   pair_share: float = 0.0) -> Path:
     """Write `count` objects of `split` under `out_dir`; returns the split directory.
 
     Classes are assigned round-robin; objects are built in `workers` spawned processes (1: in this
     process). Refuses to replace an existing split unless `force`. `realistic`: objects look like trained
-    captures (pixie_gs/dataset/realism.py); False gives the clean converter output.
+    captures (pixie_gs/dataset/realism.py); False gives the clean converter output. `pair_share`: the
+    share of objects stood beside a partner of another category (dataset/pairs.py; needs ≥ 2 classes).
     """
     if count < 1:
         raise InputError(f"--count must be ≥ 1 (got {count})")
@@ -111,9 +140,15 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
         raise InputError(f"--gaussians must be ≥ 100 (got {n_gaussians})")
     if workers < 1:
         raise InputError(f"--workers must be ≥ 1 (got {workers})")
+    if not 0.0 <= pair_share <= 1.0:
+        raise InputError(f"--pairs must be a share from 0 to 1 (got {pair_share})")
+    if pair_share > 0 and n_gaussians < MIN_PAIR_GAUSSIANS:
+        raise InputError(f"--pairs needs --gaussians ≥ {MIN_PAIR_GAUSSIANS} (half for each object; got {n_gaussians})")
     table_arg = None if table_path is None else str(Path(table_path).resolve())
     table = _table(table_arg)
     chosen = resolve_classes(table, classes)
+    if pair_share > 0 and len(chosen) < 2:
+        raise InputError(f"--pairs needs at least two classes (got {', '.join(chosen)})")
     object_seed(seed, split, 0)  # validates the split name
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
@@ -128,12 +163,14 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
         shutil.rmtree(partial)
     partial.mkdir()
     tasks = [ObjectTask(i, class_for_index(i, chosen), object_seed(seed, split, i), n_gaussians, str(partial),
-                        table_arg, realistic) for i in range(count)]
+                        table_arg, realistic, partner_for_index(seed, split, i, chosen, pair_share))
+             for i in range(count)]
     try:
         entries = _run_tasks(tasks, workers)
         index = {"format_version": FORMAT_VERSION, "split": split, "seed": int(seed), "count": count,
                  "gaussians_requested": n_gaussians, "classes": chosen,
                  "class_counts": {c: sum(e["class"] == c for e in entries) for c in chosen},
+                 "pair_share": pair_share, "pairs": sum("partner" in e for e in entries),
                  "objects": entries}
         (partial / INDEX_NAME).write_text(json.dumps(index, indent=1) + "\n")
         if final.exists():

@@ -52,20 +52,24 @@ def split_floor(data_dir: str | Path, split: str = "test", limit: int | None = N
     by_class: dict[str, list] = {}  # category -> [sum of count × floor (3,), Gaussian count]
     for path in list_objects(data_dir, split)[: limit or None]:
         record = read_json_file(Path(path).with_suffix(".json"), "a label record")
-        spec = table.get(record.get("class"))
-        if spec is None:
-            return None
-        for part in record.get("parts", []):
-            try:
-                spec_part = spec.part(part["name"])
-            except KeyError:
+        # a pair (dataset/pairs.py) adds its partner's parts, counted under the first object's category
+        # as `pixie evaluate` counts the pair's Gaussians
+        partner = record.get("partner")
+        for rec in [record] + ([partner] if isinstance(partner, dict) else []):
+            spec = table.get(rec.get("class"))
+            if spec is None:
                 return None
-            if not _drawn_from(spec_part, part):
-                return None
-            n = int(part.get("count", 0))
-            sums = by_class.setdefault(spec.name, [np.zeros(3), 0])
-            sums[0] += part_floor(spec_part) * n
-            sums[1] += n
+            for part in rec.get("parts", []):
+                try:
+                    spec_part = spec.part(part["name"])
+                except KeyError:
+                    return None
+                if not _drawn_from(spec_part, part):
+                    return None
+                n = int(part.get("count", 0))
+                sums = by_class.setdefault(record["class"], [np.zeros(3), 0])
+                sums[0] += part_floor(spec_part) * n
+                sums[1] += n
     count = sum(n for _, n in by_class.values())
     if count == 0:
         return None
