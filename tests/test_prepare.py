@@ -270,3 +270,86 @@ def test_sign_of_up_on_a_flat_based_cone(height, radius):
         turned.set_covariances(R @ cloud.covariances() @ R.T)
         _, scene = prepare_cloud(turned)
         assert angle_deg(scene.up, R @ [0, 0, 1]) < 10.0, scene.up_method
+
+
+# ------------------------------------------------------------------------------- objects vs background
+def box_surface(lo, hi, count: int, rng, faces=(0, 1, 2, 3, 4, 5)) -> tuple[np.ndarray, np.ndarray]:
+    """`count` points (and outward normals) uniform over the chosen faces (0/1: −x/+x, 2/3: ±y, 4/5: ±z)
+    of the box (lo, hi), each face getting points in proportion to its area."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    size = hi - lo
+    areas = np.array([np.prod(np.delete(size, f // 2)) for f in faces])
+    face = np.asarray(faces)[rng.choice(len(faces), count, p=areas / areas.sum())]
+    pts = lo + rng.uniform(0, 1, (count, 3)) * size
+    nrm = np.zeros((count, 3))
+    for f in faces:
+        m = face == f
+        axis, side = f // 2, f % 2
+        pts[m, axis] = hi[axis] if side else lo[axis]
+        nrm[m, axis] = 1.0 if side else -1.0
+    return pts, nrm
+
+
+def ball_surface(centre, radius: float, count: int, rng) -> tuple[np.ndarray, np.ndarray]:
+    d = rng.normal(size=(count, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return np.asarray(centre) + radius * d, d
+
+
+def scene_of(parts: list[tuple[np.ndarray, np.ndarray]], size: float = 0.006) -> tuple[SplatCloud, list[slice]]:
+    """One cloud of surface Gaussians from (points, normals) parts, with each part's slice."""
+    clouds, slices, start = [], [], 0
+    for pts, nrm in parts:
+        clouds.append(flat_gaussians(pts, nrm, size, (0.6, 0.5, 0.4)))
+        slices.append(slice(start, start + len(pts)))
+        start += len(pts)
+    return SplatCloud.concatenate(clouds), slices
+
+
+def test_a_large_thing_beside_a_small_one_is_an_object():
+    """A ball 0.25 m across beside a 0.8 m crate, 25 cm apart with no floor, the ball with a few more
+    Gaussians (a capture spends them on detail, not area: the ball is the main object), are two objects,
+    though the crate is 3.2× the ball's size (before: the crate was background, written as stationary)."""
+    rng = np.random.default_rng(3)
+    ball = ball_surface([0.0, 0.0, 0.125], 0.125, 14000, rng)
+    crate = box_surface([0.375, -0.4, 0.0], [1.175, 0.4, 0.8], 13000, rng, faces=(0, 1, 2, 3, 5))
+    cloud, (ball_at, crate_at) = scene_of([ball, crate])
+    prepared, scene = prepare_cloud(cloud, up="z")
+    role, object_id = prepared.get("role"), prepared.get("object_id")
+    assert (role[ball_at] == ROLE_OBJECT).mean() > 0.95 and (role[crate_at] == ROLE_OBJECT).mean() > 0.95
+    # the ball one object; the crate, sparse next to it, may come in more than one piece but never with it
+    assert np.unique(object_id[ball_at]).size == 1 and object_id[ball_at][0] not in set(object_id[crate_at])
+    assert len(scene.objects) >= 2
+
+
+@pytest.mark.parametrize("name, background", [("crate", False), ("wall", True), ("room", True)])
+def test_pick_objects_keeps_big_compact_neighbours_and_drops_walls_and_rooms(name, background):
+    """Two clusters, the ball the main one (heavier, at the scene centre): the second, 4× or more its size,
+    is an object when it is a compact thing beside it, background when it is a sheet or a shell over it."""
+    from pixie_gs.prepare.objects import pick_objects
+
+    rng = np.random.default_rng(4)
+    ball, _ = ball_surface([0.0, 0.0, 0.1], 0.1, 3000, rng)
+    other, _ = {"crate": box_surface([0.35, -0.4, 0.0], [1.15, 0.4, 0.8], 2000, rng),
+                "wall": box_surface([-1.0, 0.4, 0.0], [1.0, 0.41, 1.5], 2000, rng, faces=(2,)),
+                "room": box_surface([-1.5, -1.5, 0.0], [1.5, 1.5, 2.2], 2000, rng, faces=(0, 1, 2, 3, 5))}[name]
+    points = np.vstack([ball, other])
+    labels = np.repeat([0, 1], [len(ball), len(other)])
+    out = pick_objects(points, np.ones(len(points)), labels, centre=np.array([0.0, 0.0, 0.1]))
+    assert (out[:len(ball)] == 0).all()
+    assert (out[len(ball):] == -1).all() if background else (out[len(ball):] == 1).all()
+
+
+@pytest.mark.parametrize("box, background", [
+    (([0, 0, 0], [1.0, 1.0, 1.0]), False),   # a crate 4× the main object's size, beside it
+    (([0, 0, 0], [0.5, 0.5, 0.5]), False),   # only 2× its size: an object whatever its shape
+    (([0, 0, 0], [2.0, 0.02, 1.5]), True),   # a wall (sheet)
+    (([-0.1, 0, 0], [1.0, 1.0, 0.1]), True),  # a board under-and-beside it, thinner than 0.15 of its length: a sheet
+    (([-1, -1, 0], [1, 1, 1.5]), True),      # a room shell whose footprint holds the main object's centre
+])
+def test_looks_like_background_by_size_sheet_and_surround(box, background):
+    from pixie_gs.prepare.objects import looks_like_background
+
+    main_lo, main_hi = np.array([-0.25, -0.1, 0.0]), np.array([-0.05, 0.1, 0.2])  # 0.25 m, outside x ≥ 0
+    lo, hi = (np.asarray(v, float) for v in box)
+    assert looks_like_background(lo, hi, main_lo, main_hi) is background

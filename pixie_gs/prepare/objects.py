@@ -107,6 +107,25 @@ def fit_box(x: np.ndarray, grow: float = 0.1, mask: np.ndarray | None = None) ->
     return np.maximum(sub.min(axis=0), lo - pad), np.minimum(sub.max(axis=0), hi + pad)
 
 
+SHEET_RATIO = 0.15  # a box whose thinnest side is under this share of its longest is a sheet (wall, floor, backdrop)
+BACKGROUND_SIZE = 3.0  # a cluster this many times the main object's size is background if it is a sheet or surrounds it
+
+
+def looks_like_background(lo: np.ndarray, hi: np.ndarray, main_lo: np.ndarray, main_hi: np.ndarray) -> bool:
+    """Whether a cluster with box (lo, hi), in the up frame, much larger than the main object (box main_lo,
+    main_hi), is background rather than a second object: a sheet (a wall, a floor, a backdrop), or a
+    shell whose horizontal footprint holds the main object's centre (a room, a table under it). A big
+    compact thing standing beside the main object (a crate beside a ball, a sand pile beside a cushion)
+    is an object."""
+    if float((hi - lo).max()) <= BACKGROUND_SIZE * float((main_hi - main_lo).max()):
+        return False
+    extent = np.sort(hi - lo)
+    if extent[0] < SHEET_RATIO * extent[2]:
+        return True
+    centre = 0.5 * (main_lo + main_hi)
+    return bool(np.all((centre[:2] >= lo[:2]) & (centre[:2] <= hi[:2])))
+
+
 def pick_objects(points_up: np.ndarray, weights: np.ndarray, labels: np.ndarray, centre: np.ndarray,
                  merge_grow: float = 0.2, companion_share: float = 0.3) -> np.ndarray:
     """Object id (N,) per point (−1: not an object) from component `labels`, in the up frame.
@@ -114,7 +133,8 @@ def pick_objects(points_up: np.ndarray, weights: np.ndarray, labels: np.ndarray,
     The main object is the heaviest component weighted by closeness to the scene `centre`
     (captures are framed on their subject); components whose centre lies within its box grown
     by `merge_grow` of its size join it (leaves of a tree); other components at least
-    `companion_share` as heavy and no larger than 3× the main object become further objects."""
+    `companion_share` as heavy become further objects unless they look like background
+    (`looks_like_background`: much larger than the main object and a sheet or around it)."""
     n_lab = int(labels.max()) + 1 if len(labels) else 0
     mass = np.bincount(labels, weights=weights, minlength=n_lab)
     cen = np.stack([np.bincount(labels, weights=weights * points_up[:, k], minlength=n_lab) for k in range(3)], 1)
@@ -135,7 +155,7 @@ def pick_objects(points_up: np.ndarray, weights: np.ndarray, labels: np.ndarray,
         taken[lab] = True
         members = labels == lab
         lo, hi = robust_box(points_up, members)
-        if objects and (hi - lo).max() > 3.0 * main_size:
+        if objects and looks_like_background(lo, hi, *main_box):
             continue
         for _ in range(2):  # absorb nearby fragments, twice so chains of leaves join
             pad = merge_grow * (hi - lo).max()
@@ -149,7 +169,7 @@ def pick_objects(points_up: np.ndarray, weights: np.ndarray, labels: np.ndarray,
             members = in_group[labels]
             lo, hi = robust_box(points_up, members)
         if not objects:
-            main_size = float((hi - lo).max())
+            main_box = (lo, hi)
         out[members] = len(objects)
         objects.append(np.array(group))
     return out
