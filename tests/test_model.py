@@ -476,6 +476,22 @@ def test_train_rejects_a_tilt_outside_its_range(tmp_path, capsys, flag, value):
     assert not (tmp_path / "m.pt").exists()
 
 
+@pytest.mark.parametrize("flag,value,message", [
+    ("--context-width", "2048", "--context-width must be ≤ 1024"), ("--base-channels", "1500", "--base-channels must be ≤ 1024"),
+    ("--res-blocks", "17", "--res-blocks must be ≤ 16"), ("--resolution", "4", "--resolution must be ≥ 8"),
+    ("--multipliers", "1,2,100", "--multipliers must be 1 to 6 integers")])
+def test_train_refuses_a_network_the_checkpoint_loader_would_refuse(tmp_path, capsys, flag, value, message):
+    """Widths above the loader's ranges (model/checkpoint.py: 1024 channels, 16 residual blocks, grids of
+    8–512, multipliers 1–64) stop before any data is read, with one line, instead of training a checkpoint
+    that `annotate` then refuses."""
+    from pixie_gs.cli.main import main
+
+    rc = main(["train", str(tmp_path), "--out", str(tmp_path / "m.pt"), flag, value, "--device", "cpu", "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1 and message in err[0], (rc, err)
+    assert not (tmp_path / "m.pt").exists()
+
+
 def test_object_context_adds_one_vector_per_object_that_depends_on_the_whole_grid():
     """The branch adds, at the bottleneck, the same vector to every voxel of an object: a function of the
     whole grid (an input far from a voxel changes it), different for each object of a batch."""

@@ -73,6 +73,20 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--{name.replace('_', '-')} must be ≥ 1")
     if args.context_width < 0:
         raise InputError("--context-width must be ≥ 0")
+    # a network that `annotate` would refuse to load (model/checkpoint.py's ranges) is refused before training
+    from ..model.checkpoint import CHANNELS_RANGE, MAX_LEVELS, MAX_RES_BLOCKS, MULTIPLIER_RANGE, RESOLUTION_RANGE
+
+    for flag, value, high in (("--base-channels", args.base_channels, CHANNELS_RANGE[1]),
+                              ("--context-width", args.context_width, CHANNELS_RANGE[1]),
+                              ("--res-blocks", args.res_blocks, MAX_RES_BLOCKS),
+                              ("--resolution", args.resolution, RESOLUTION_RANGE[1])):
+        if value > high:
+            raise InputError(f"{flag} must be ≤ {high} (a larger network is refused when loaded; got {value})")
+    if args.resolution < RESOLUTION_RANGE[0]:
+        raise InputError(f"--resolution must be ≥ {RESOLUTION_RANGE[0]} (got {args.resolution})")
+    if len(mults) > MAX_LEVELS or not all(MULTIPLIER_RANGE[0] <= m <= MULTIPLIER_RANGE[1] for m in mults):
+        raise InputError(f"--multipliers must be 1 to {MAX_LEVELS} integers within {MULTIPLIER_RANGE[0]}–"
+                         f"{MULTIPLIER_RANGE[1]} (got '{args.multipliers}')")
     if not (0.0 <= args.tilt_deg <= 90.0 and 0.0 <= args.tilt_share <= 1.0):
         raise InputError("--tilt-deg must be within 0–90 and --tilt-share within 0–1")
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, time_budget_s=args.time_budget_s,
