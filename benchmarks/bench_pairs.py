@@ -1,7 +1,7 @@
 """Benchmark (issue 12): two objects of different categories in one splat, standing side by side.
 
-Most generated training objects are one category alone (plus ground and floaters; `pixie generate --pairs`
-makes the pairs measured here a share of the training data), while real captures
+Most generated training objects are one category alone (plus floaters; `pixie generate --pairs` makes
+the pairs measured here a share of the training data), while real captures
 often hold two touching things (a plant in a wooden frame, a guitar on a stand). This measures what the
 shipped checkpoint does with them: held-out generated objects (clean, test-split seeds) are annotated
 alone, then in pairs of different categories on one ground, their footprints touching (a gap of −10 % to
@@ -14,6 +14,7 @@ material spread over it. No speed target: a correctness benchmark; the baseline 
     python benchmarks/bench_pairs.py                       # 26 categories × 2 objects → 26 pairs, ~2 min on 2 cores
     python benchmarks/bench_pairs.py --per-class 1 --json pairs.json
     python benchmarks/bench_pairs.py --picture docs/pairs_example.png   # up to 4 pairs with an object taken over
+    python benchmarks/bench_pairs.py --floor    # each pair on a floor disc, as a capture on a table or ground
 """
 from __future__ import annotations
 
@@ -38,6 +39,31 @@ def accuracy(predicted: np.ndarray, truth: np.ndarray) -> float:
     return float((np.asarray(predicted) == np.asarray(truth)).mean())
 
 
+def with_floor(cloud, rng: np.random.Generator, share: float = 0.3):
+    """`cloud` standing on a grey floor disc (flat Gaussians, `share` × its count, labelled stationary like
+    the ground `prepare` finds) reaching 0.75 of the pair's footprint diagonal beyond its centre, 2 mm under
+    its lowest centre. The floor's Gaussians come last, so the pair's slices are unchanged."""
+    from pixie_gs.materials import STATIONARY
+    from pixie_gs.splat import SplatCloud
+    from test_prepare import flat_gaussians
+
+    lo, hi = cloud.bounds()
+    n = max(100, int(share * len(cloud)))
+    radius = 0.75 * float(np.linalg.norm((hi - lo)[:2]))
+    r, t = radius * np.sqrt(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n)
+    centre = 0.5 * (lo + hi)
+    points = np.column_stack([centre[0] + r * np.cos(t), centre[1] + r * np.sin(t), np.full(n, lo[2] - 0.002)])
+    spacing = radius * np.sqrt(np.pi / n)
+    floor = flat_gaussians(points, np.tile([0.0, 0.0, 1.0], (n, 1)), 0.6 * spacing, (0.45, 0.45, 0.43))
+    floor = floor.with_sh_degree(cloud.sh_degree)
+    floor.set_materials(np.full(n, STATIONARY, np.int32), np.full(n, 1e9, np.float32), np.full(n, 0.3, np.float32),
+                        np.full(n, 1500.0, np.float32))
+    for name in cloud.extras:
+        if name not in floor.extras:
+            floor.set(name, np.full(n, -1 if name == "part_id" else 0, cloud.extras[name].dtype), cloud.extras[name].dtype)
+    return SplatCloud.concatenate([cloud, floor])
+
+
 def taken_over(row: dict, key: str) -> bool:
     """Right alone and mostly wrong in the pair (`key`: pair_plain or pair_prepared)."""
     return row["alone"] >= TAKEN_OVER_ALONE and row[key] < TAKEN_OVER_PAIR
@@ -49,6 +75,8 @@ def main() -> None:
     ap.add_argument("--gaussians", type=int, default=8000, help="Gaussians per object (±20 %%)")
     ap.add_argument("--seed", type=int, default=88, help="test-split dataset seed of the objects")
     ap.add_argument("--device", default="cpu", help="torch device for the model (cpu, cuda)")
+    ap.add_argument("--floor", action="store_true",
+                    help="stand each pair on a floor disc (stationary), as a capture on a table or ground has")
     ap.add_argument("--json", default=None, help="also write every figure as JSON")
     ap.add_argument("--picture", default=None, metavar="PNG",
                     help="also draw up to 4 pairs where an object was taken over: RGB, true and predicted class")
@@ -85,6 +113,8 @@ def main() -> None:
     for i, j in pairs:
         (name_a, a), (name_b, b) = objects[i], objects[j]
         joined, _ = side_by_side(a, b, rng)
+        if args.floor:
+            joined = with_floor(joined, rng)
         truth = joined.get("material_id")
         n_a = len(a)
         plain, _ = predict(joined, False, args.device)
@@ -107,8 +137,8 @@ def main() -> None:
         summary[f"mean_{key}"] = float(np.mean([r[key] for r in rows]))
     for key in ("pair_plain", "pair_prepared"):
         summary[f"taken_over_{key}"] = sum(taken_over(r, key) for r in rows)
-    print(f"\n{len(rows)} objects in {len(pairs)} pairs, {args.gaussians} Gaussians each; share of each object's "
-          f"Gaussians given their true material class (mean over objects)")
+    print(f"\n{len(rows)} objects in {len(pairs)} pairs{' on a floor' if args.floor else ''}, {args.gaussians} "
+          f"Gaussians each; share of each object's Gaussians given their true material class (mean over objects)")
     print(f"  alone (baseline)     {summary['mean_alone']:.3f}")
     for key, label in (("pair_plain", "in a pair, plain"), ("pair_prepared", "in a pair, prepared")):
         print(f"  {label:<20} {summary[f'mean_{key}']:.3f}  ratio to alone "
