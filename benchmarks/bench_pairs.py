@@ -39,31 +39,6 @@ def accuracy(predicted: np.ndarray, truth: np.ndarray) -> float:
     return float((np.asarray(predicted) == np.asarray(truth)).mean())
 
 
-def with_floor(cloud, rng: np.random.Generator, share: float = 0.3):
-    """`cloud` standing on a grey floor disc (flat Gaussians, `share` × its count, labelled stationary like
-    the ground `prepare` finds) reaching 0.75 of the pair's footprint diagonal beyond its centre, 2 mm under
-    its lowest centre. The floor's Gaussians come last, so the pair's slices are unchanged."""
-    from pixie_gs.materials import STATIONARY
-    from pixie_gs.splat import SplatCloud
-    from test_prepare import flat_gaussians
-
-    lo, hi = cloud.bounds()
-    n = max(100, int(share * len(cloud)))
-    radius = 0.75 * float(np.linalg.norm((hi - lo)[:2]))
-    r, t = radius * np.sqrt(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n)
-    centre = 0.5 * (lo + hi)
-    points = np.column_stack([centre[0] + r * np.cos(t), centre[1] + r * np.sin(t), np.full(n, lo[2] - 0.002)])
-    spacing = radius * np.sqrt(np.pi / n)
-    floor = flat_gaussians(points, np.tile([0.0, 0.0, 1.0], (n, 1)), 0.6 * spacing, (0.45, 0.45, 0.43))
-    floor = floor.with_sh_degree(cloud.sh_degree)
-    floor.set_materials(np.full(n, STATIONARY, np.int32), np.full(n, 1e9, np.float32), np.full(n, 0.3, np.float32),
-                        np.full(n, 1500.0, np.float32))
-    for name in cloud.extras:
-        if name not in floor.extras:
-            floor.set(name, np.full(n, -1 if name == "part_id" else 0, cloud.extras[name].dtype), cloud.extras[name].dtype)
-    return SplatCloud.concatenate([cloud, floor])
-
-
 def taken_over(row: dict, key: str) -> bool:
     """Right alone and mostly wrong in the pair (`key`: pair_plain or pair_prepared)."""
     return row["alone"] >= TAKEN_OVER_ALONE and row[key] < TAKEN_OVER_PAIR
@@ -76,7 +51,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=88, help="test-split dataset seed of the objects")
     ap.add_argument("--device", default="cpu", help="torch device for the model (cpu, cuda)")
     ap.add_argument("--floor", action="store_true",
-                    help="stand each pair on a floor disc (stationary), as a capture on a table or ground has")
+                    help="stand each pair on a floor disc (stationary; dataset/floor.py, 0.3 of the pair's Gaussians), "
+                         "as a capture on a table or ground has")
     ap.add_argument("--json", default=None, help="also write every figure as JSON")
     ap.add_argument("--picture", default=None, metavar="PNG",
                     help="also draw up to 4 pairs where an object was taken over: RGB, true and predicted class")
@@ -85,6 +61,7 @@ def main() -> None:
     from pixie_gs.dataset.assemble import build_object
     from pixie_gs.dataset.generate import object_seed
     from pixie_gs.dataset.labels import load_class_table
+    from pixie_gs.dataset.floor import with_floor
     from pixie_gs.dataset.pairs import side_by_side
     from pixie_gs.progress import set_quiet
 
@@ -114,7 +91,7 @@ def main() -> None:
         (name_a, a), (name_b, b) = objects[i], objects[j]
         joined, _ = side_by_side(a, b, rng)
         if args.floor:
-            joined = with_floor(joined, rng)
+            joined, _ = with_floor(joined, rng, share=0.3)
         truth = joined.get("material_id")
         n_a = len(a)
         plain, _ = predict(joined, False, args.device)

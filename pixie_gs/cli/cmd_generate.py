@@ -34,6 +34,9 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--pairs", type=float, default=0.0, metavar="SHARE",
                    help="share of objects (0-1) stood beside a partner of another category, footprints "
                         "touching, half the Gaussians each, like two things in one capture (default 0)")
+    p.add_argument("--floors", type=float, default=0.0, metavar="SHARE",
+                   help="share of objects (0-1) standing on a floor disc labelled stationary, as a capture "
+                        "on a table or the ground holds it (default 0)")
     p.add_argument("--force", action="store_true", help="replace an existing split")
     p.set_defaults(func=run)
     return p
@@ -55,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     split_dir = generate_split(args.out_dir, args.count, classes=classes, seed=args.seed, split=args.split,
                                workers=args.workers, n_gaussians=args.gaussians, table_path=args.table,
                                force=args.force, realistic=not args.clean,
-                               pair_share=args.pairs)
+                               pair_share=args.pairs, floor_share=args.floors)
     stage(f"wrote {split_dir}/index.json")
     if args.preview:
         shown = write_preview(args.out_dir, args.split, args.preview)

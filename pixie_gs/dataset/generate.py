@@ -5,7 +5,8 @@ and OUT_DIR/<split>/index.json listing every object. A split is written into a h
 directory and renamed into place when complete, so a failed run leaves no partial split.
 Object i's seed depends only on (seed, split, i): the bytes do not depend on the worker count.
 With `pair_share` > 0, that share of the objects are pairs (dataset/pairs.py): the object and a partner
-of another category side by side, named OUT_DIR/<split>/<index:06d>_<class>+<partner>.ply.
+of another category side by side, named OUT_DIR/<split>/<index:06d>_<class>+<partner>.ply. With
+`floor_share` > 0, that share stand on a floor disc labelled stationary (dataset/floor.py).
 """
 from __future__ import annotations
 
@@ -23,12 +24,14 @@ from ..errors import InputError
 from ..progress import is_quiet, progress, set_quiet
 from .assemble import build_object
 from .labels import ClassSpec, load_class_table
+from .floor import floor_record, with_floor
 from .pairs import MIN_PAIR_GAUSSIANS, build_pair
 
 SPLITS = ("train", "val", "test")
 # Mixed into every object seed so that the splits never share a seed (see object_seed).
 SPLIT_SALT = {"train": 0x7261696E, "val": 0x76616C00, "test": 0x74657374}
 PAIR_SALT = 0x70616972  # the stream that decides which objects are pairs and with whom
+FLOOR_SALT = 0x666C6F72  # the stream that decides which objects stand on a floor, and draws the floor
 INDEX_NAME = "index.json"
 FORMAT_VERSION = 1
 
@@ -56,6 +59,17 @@ def partner_for_index(seed: int, split: str, index: int, classes: list[str], pai
     return others[int(rng.integers(len(others)))]
 
 
+def floor_seed_for_index(seed: int, split: str, index: int, floor_share: float) -> int | None:
+    """The seed of object `index`'s floor (dataset/floor.py), or None when it stands on none; from its own
+    stream (seed, split, index, FLOOR_SALT), so objects without a floor are the same files either way."""
+    if floor_share <= 0:
+        return None
+    rng = np.random.default_rng([int(seed), SPLIT_SALT[split], int(index), FLOOR_SALT])
+    if rng.random() >= floor_share:
+        return None
+    return int(rng.integers(0, 2**63 - 1))
+
+
 def class_for_index(index: int, classes: list[str]) -> str:
     """Round-robin class order: every class gets ⌊N/k⌋ or ⌈N/k⌉ of N objects."""
     return classes[index % len(classes)]
@@ -77,6 +91,7 @@ class ObjectTask:
     table_path: str | None
     realistic: bool = True
     partner: str | None = None  # the partner's category: this object is a pair (dataset/pairs.py)
+    floor_seed: int | None = None  # the object stands on a floor drawn from this seed (dataset/floor.py)
 
 
 _TABLE_CACHE: dict[str | None, dict[str, ClassSpec]] = {}
@@ -99,6 +114,11 @@ def write_object(task: ObjectTask) -> dict:
         else:
             partner = _table(task.table_path)[task.partner]
             cloud, record = build_pair(spec, partner, task.seed, task.n_gaussians, task.realistic)
+        if task.floor_seed is not None:
+            cloud, n_floor = with_floor(cloud, np.random.default_rng(task.floor_seed))
+            lo, hi = cloud.bounds()
+            record = {**record, "gaussians": len(cloud), "bounds_min_m": [round(float(v), 5) for v in lo],
+                      "bounds_max_m": [round(float(v), 5) for v in hi], "floor": floor_record(n_floor)}
     finally:
         set_quiet(was_quiet)
     stem = object_stem(task.index, task.class_name, task.partner)
@@ -110,6 +130,8 @@ def write_object(task: ObjectTask) -> dict:
              "gaussians": record["gaussians"], "parts": [p["name"] for p in record["parts"]]}
     if task.partner is not None:
         entry["partner"] = task.partner
+    if task.floor_seed is not None:
+        entry["floor"] = record["floor"]["count"]
     return entry
 
 
@@ -126,13 +148,14 @@ def resolve_classes(table: dict[str, ClassSpec], names: list[str] | None) -> lis
 def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None = None, seed: int = 0,
                    split: str = "train", workers: int = 1, n_gaussians: int = 50_000,
                    table_path: str | Path | None = None, force: bool = False, realistic: bool = True,
-                   pair_share: float = 0.0) -> Path:
+                   pair_share: float = 0.0, floor_share: float = 0.0) -> Path:
     """Write `count` objects of `split` under `out_dir`; returns the split directory.
 
     Classes are assigned round-robin; objects are built in `workers` spawned processes (1: in this
     process). Refuses to replace an existing split unless `force`. `realistic`: objects look like trained
     captures (pixie_gs/dataset/realism.py); False gives the clean converter output. `pair_share`: the
     share of objects stood beside a partner of another category (dataset/pairs.py; needs ≥ 2 classes).
+    `floor_share`: the share stood on a floor disc labelled stationary (dataset/floor.py).
     """
     if count < 1:
         raise InputError(f"--count must be ≥ 1 (got {count})")
@@ -142,6 +165,8 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
         raise InputError(f"--workers must be ≥ 1 (got {workers})")
     if not 0.0 <= pair_share <= 1.0:
         raise InputError(f"--pairs must be a share from 0 to 1 (got {pair_share})")
+    if not 0.0 <= floor_share <= 1.0:
+        raise InputError(f"--floors must be a share from 0 to 1 (got {floor_share})")
     if pair_share > 0 and n_gaussians < MIN_PAIR_GAUSSIANS:
         raise InputError(f"--pairs needs --gaussians ≥ {MIN_PAIR_GAUSSIANS} (half for each object; got {n_gaussians})")
     table_arg = None if table_path is None else str(Path(table_path).resolve())
@@ -163,7 +188,8 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
         shutil.rmtree(partial)
     partial.mkdir()
     tasks = [ObjectTask(i, class_for_index(i, chosen), object_seed(seed, split, i), n_gaussians, str(partial),
-                        table_arg, realistic, partner_for_index(seed, split, i, chosen, pair_share))
+                        table_arg, realistic, partner_for_index(seed, split, i, chosen, pair_share),
+                        floor_seed_for_index(seed, split, i, floor_share))
              for i in range(count)]
     try:
         entries = _run_tasks(tasks, workers)
@@ -171,6 +197,7 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
                  "gaussians_requested": n_gaussians, "classes": chosen,
                  "class_counts": {c: sum(e["class"] == c for e in entries) for c in chosen},
                  "pair_share": pair_share, "pairs": sum("partner" in e for e in entries),
+                 "floor_share": floor_share, "floors": sum("floor" in e for e in entries),
                  "objects": entries}
         (partial / INDEX_NAME).write_text(json.dumps(index, indent=1) + "\n")
         if final.exists():

@@ -70,6 +70,9 @@ def split_floor(data_dir: str | Path, split: str = "test", limit: int | None = N
                 sums = by_class.setdefault(record["class"], [np.zeros(3), 0])
                 sums[0] += part_floor(spec_part) * n
                 sums[1] += n
+        floor = record.get("floor")  # a floor under the object (dataset/floor.py): constant labels, no spread
+        if isinstance(floor, dict):
+            by_class.setdefault(record["class"], [np.zeros(3), 0])[1] += int(floor.get("count", 0))
     count = sum(n for _, n in by_class.values())
     if count == 0:
         return None
