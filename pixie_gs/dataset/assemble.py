@@ -44,6 +44,14 @@ def allocate_counts(pieces: list[Piece], total: int) -> list[tuple[int, int]]:
     return out
 
 
+def extent_record(cloud: SplatCloud) -> dict:
+    """The record fields that describe a cloud's extent: its Gaussian count and its centres' bounds (m,
+    rounded to 0.01 mm); shared by objects, pairs and objects on a floor."""
+    lo, hi = cloud.bounds()
+    return {"gaussians": len(cloud), "bounds_min_m": [round(float(v), 5) for v in lo],
+            "bounds_max_m": [round(float(v), 5) for v in hi]}
+
+
 def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int, realistic: bool = False
                  ) -> tuple[SplatCloud, dict]:
     """One labelled object of class `spec` from `object_seed`, about `n_gaussians` Gaussians.
@@ -110,18 +118,18 @@ def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int, realistic:
     cloud.set_materials(material, E, nu, rho)
     cloud.set("part_id", part_id, np.int32)
 
-    lo, hi = cloud.bounds()
+    extent = extent_record(cloud)
     record = {
         "class": spec.name,
         "recipe": spec.recipe,
         "seed": int(object_seed),
-        "gaussians": n,
+        "gaussians": extent["gaussians"],
         "scale": round(scale, 6),
         "yaw_rad": round(yaw, 6),
         "gaussian_size_factor": round(size_factor, 6),
         "opacity": round(opacity, 6),
-        "bounds_min_m": [round(float(v), 5) for v in lo],
-        "bounds_max_m": [round(float(v), 5) for v in hi],
+        "bounds_min_m": extent["bounds_min_m"],
+        "bounds_max_m": extent["bounds_max_m"],
         "rejection_draws": draws,
         "parts": [
             {"name": name, "part_id": spec.part(name).part_id, "material_id": spec.part(name).material_id,

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..progress import is_quiet, progress, set_quiet
-from .assemble import build_object
+from .assemble import build_object, extent_record
 from .labels import ClassSpec, load_class_table
 from .floor import floor_record, with_floor
 from .pairs import MIN_PAIR_GAUSSIANS, build_pair
@@ -44,6 +44,12 @@ def object_seed(seed: int, split: str, index: int) -> int:
     return int(state[0]) << 32 | int(state[1])
 
 
+def object_side_stream(seed: int, split: str, index: int, salt: int) -> np.random.Generator:
+    """A random stream of object `index` apart from its seed's (seed, split, index, `salt`): what it draws
+    leaves the object's own draws, and so the files of objects it does not touch, unchanged."""
+    return np.random.default_rng([int(seed), SPLIT_SALT[split], int(index), salt])
+
+
 def partner_for_index(seed: int, split: str, index: int, classes: list[str], pair_share: float) -> str | None:
     """The partner category of object `index` (another of `classes`), or None when it stands alone.
 
@@ -51,7 +57,7 @@ def partner_for_index(seed: int, split: str, index: int, classes: list[str], pai
     files with or without pairs elsewhere in the split, and a pair's partner does not depend on workers."""
     if pair_share <= 0 or len(classes) < 2:
         return None
-    rng = np.random.default_rng([int(seed), SPLIT_SALT[split], int(index), PAIR_SALT])
+    rng = object_side_stream(seed, split, index, PAIR_SALT)
     if rng.random() >= pair_share:
         return None
     own = class_for_index(index, classes)
@@ -64,7 +70,7 @@ def floor_seed_for_index(seed: int, split: str, index: int, floor_share: float) 
     stream (seed, split, index, FLOOR_SALT), so objects without a floor are the same files either way."""
     if floor_share <= 0:
         return None
-    rng = np.random.default_rng([int(seed), SPLIT_SALT[split], int(index), FLOOR_SALT])
+    rng = object_side_stream(seed, split, index, FLOOR_SALT)
     if rng.random() >= floor_share:
         return None
     return int(rng.integers(0, 2**63 - 1))
@@ -116,9 +122,7 @@ def write_object(task: ObjectTask) -> dict:
             cloud, record = build_pair(spec, partner, task.seed, task.n_gaussians, task.realistic)
         if task.floor_seed is not None:
             cloud, n_floor = with_floor(cloud, np.random.default_rng(task.floor_seed))
-            lo, hi = cloud.bounds()
-            record = {**record, "gaussians": len(cloud), "bounds_min_m": [round(float(v), 5) for v in lo],
-                      "bounds_max_m": [round(float(v), 5) for v in hi], "floor": floor_record(n_floor)}
+            record = {**record, **extent_record(cloud), "floor": floor_record(n_floor)}
     finally:
         set_quiet(was_quiet)
     stem = object_stem(task.index, task.class_name, task.partner)

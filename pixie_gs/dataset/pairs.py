@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..splat import SplatCloud
-from .assemble import build_object
+from .assemble import build_object, extent_record
 from .labels import ClassSpec
 
 PAIR_GAP = (-0.1, 0.2)  # gap between the footprints, as a share of the smaller one (negative: they overlap)
@@ -61,9 +61,6 @@ def build_pair(spec: ClassSpec, partner: ClassSpec, pair_seed: int, n_gaussians:
     b, partner_record = build_object(partner, seed_b, n_gaussians - n_gaussians // 2, realistic)
     b.set("part_id", (b.get("part_id") + PARTNER_PART_OFFSET).astype(np.int32), np.int32)
     cloud, shift = side_by_side(a, b, np.random.default_rng(seed_place))
-    lo, hi = cloud.bounds()
     partner_record = {**partner_record, "part_id_offset": PARTNER_PART_OFFSET,
                       "shift_m": [round(float(v), 5) for v in shift]}
-    return cloud, {**record, "seed": int(pair_seed), "gaussians": len(cloud),
-                   "bounds_min_m": [round(float(v), 5) for v in lo],
-                   "bounds_max_m": [round(float(v), 5) for v in hi], "partner": partner_record}
+    return cloud, {**record, "seed": int(pair_seed), **extent_record(cloud), "partner": partner_record}

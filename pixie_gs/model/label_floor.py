@@ -52,8 +52,10 @@ def split_floor(data_dir: str | Path, split: str = "test", limit: int | None = N
     by_class: dict[str, list] = {}  # category -> [sum of count × floor (3,), Gaussian count]
     for path in list_objects(data_dir, split)[: limit or None]:
         record = read_json_file(Path(path).with_suffix(".json"), "a label record")
-        # a pair (dataset/pairs.py) adds its partner's parts, counted under the first object's category
-        # as `pixie evaluate` counts the pair's Gaussians
+        # a pair (dataset/pairs.py) adds its partner's parts, a floor (dataset/floor.py) its Gaussians with
+        # constant labels (no spread), all counted under the first object's category as `pixie evaluate`
+        # counts them
+        sums = by_class.setdefault(record.get("class"), [np.zeros(3), 0])
         partner = record.get("partner")
         for rec in [record] + ([partner] if isinstance(partner, dict) else []):
             spec = table.get(rec.get("class"))
@@ -67,12 +69,11 @@ def split_floor(data_dir: str | Path, split: str = "test", limit: int | None = N
                 if not _drawn_from(spec_part, part):
                     return None
                 n = int(part.get("count", 0))
-                sums = by_class.setdefault(record["class"], [np.zeros(3), 0])
                 sums[0] += part_floor(spec_part) * n
                 sums[1] += n
-        floor = record.get("floor")  # a floor under the object (dataset/floor.py): constant labels, no spread
+        floor = record.get("floor")
         if isinstance(floor, dict):
-            by_class.setdefault(record["class"], [np.zeros(3), 0])[1] += int(floor.get("count", 0))
+            sums[1] += int(floor.get("count", 0))
     count = sum(n for _, n in by_class.values())
     if count == 0:
         return None
