@@ -47,6 +47,7 @@ snapshot() {
   for f in pixie_default.pt pixie_default.pt.state.pt train_pixie_default.json train_logs.json eval_pixie_default.json log.txt daemon.txt; do
     [ -f "$RUN/$f" ] && cp "$RUN/$f" "$OUT/"
   done
+  cp "$RUN"/pixie_default.epoch*.pt "$OUT/" 2>/dev/null || true   # with --keep-epochs: every epoch's weights
   python3 - "$RUN" <<'PY' || true
 import json, pathlib, sys
 run = pathlib.Path(sys.argv[1])

@@ -225,7 +225,8 @@ def test_shipped_checkpoint_on_clean_objects_of_every_class():
 
 
 def test_train_resume_and_evaluate_cli_on_a_generated_dataset(tmp_path, capsys):
-    """`pixie train` (1 epoch) → `--resume` to epoch 2 keeps epoch 1's history → `pixie evaluate` table."""
+    """`pixie train` (1 epoch) → `--resume` to epoch 2 keeps epoch 1's history → `pixie evaluate` table;
+    `--keep-epochs` leaves each epoch's own weights beside the best ones."""
     import json
 
     from pixie_gs.cli.main import main
@@ -237,10 +238,17 @@ def test_train_resume_and_evaluate_cli_on_a_generated_dataset(tmp_path, capsys):
     ckpt = tmp_path / "m.pt"
     common = ["--device", "cpu", "--resolution", "16", "--base-channels", "4", "--multipliers", "1,2",
               "--batch-size", "2", "-q"]
-    assert main(["train", str(data), "--out", str(ckpt), "--epochs", "1", *common]) == 0
+    assert main(["train", str(data), "--out", str(ckpt), "--epochs", "1", "--keep-epochs", *common]) == 0
     first = load_checkpoint(ckpt).meta["history"]
     assert [h["epoch"] for h in first] == [1]
-    assert main(["train", str(data), "--out", str(ckpt), "--epochs", "2", "--resume", *common]) == 0
+    assert main(["train", str(data), "--out", str(ckpt), "--epochs", "2", "--resume", "--keep-epochs", *common]) == 0
+    kept = {n: load_checkpoint(tmp_path / f"m.epoch{n:02d}.pt") for n in (1, 2)}
+    assert sorted(p.name for p in tmp_path.glob("m.epoch*.pt")) == ["m.epoch01.pt", "m.epoch02.pt"]
+    assert [kept[n].meta["epoch"] for n in (1, 2)] == [1, 2]
+    weights = {n: kept[n].model.state_dict() for n in (1, 2)}
+    assert any(not torch.equal(weights[1][k], weights[2][k]) for k in weights[1])  # epoch 2 trained on
+    best = load_checkpoint(ckpt)
+    assert all(torch.equal(v, weights[best.meta["best_epoch"]][k]) for k, v in best.model.state_dict().items())
     state = torch.load(str(ckpt) + ".state.pt", weights_only=True)
     history = json.loads(state["history_json"])
     assert [h["epoch"] for h in history] == [1, 2] and history[0] == first[0]

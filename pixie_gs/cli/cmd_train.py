@@ -48,6 +48,9 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--build-objects", type=int, default=None, metavar="N",
                    help="objects whose input grids are built in one pass, several steps' worth (default: up to "
                    "128 on CUDA as memory allows, one step on the CPU)")
+    p.add_argument("--keep-epochs", action="store_true",
+                   help="also write every epoch's weights as CKPT_STEM.epochNN.pt (to score each on real captures, "
+                   "e.g. benchmarks/bench_real_set.py, before picking one)")
     p.add_argument("--log", "--log-json", dest="log", default=None, metavar="JSON",
                    help="write the per-epoch history here (under torchrun write --log-json: torchrun's own "
                    "parser takes --log for an abbreviation of its options)")
@@ -93,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
                       seed=args.seed, augment=not args.no_augment, workers=args.workers,
                       tilt_max_deg=args.tilt_deg, tilt_share=args.tilt_share,
                       limit_train=args.limit_train, limit_val=args.limit_val, input_mode=args.inputs,
-                      init_from=args.init, objects_per_build=args.build_objects,
+                      init_from=args.init, objects_per_build=args.build_objects, keep_epochs=args.keep_epochs,
                       model={"base_channels": args.base_channels, "multipliers": mults, "res_blocks": args.res_blocks,
                              "context_width": args.context_width},
                       features={"resolution": args.resolution})

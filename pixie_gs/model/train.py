@@ -47,9 +47,20 @@ class TrainConfig:
     limit_val: int | None = None
     input_mode: str = "full"
     init_from: str | None = None  # start from this checkpoint's weights (same network config), fresh optimiser
+    keep_epochs: bool = False  # also write every epoch's weights (epoch_checkpoint_path) to pick among them later
     model: dict = field(default_factory=dict)  # ModelConfig overrides (base_channels, multipliers, …)
     objects_per_build: int | None = None  # grids built per call, several steps' worth (None: by device)
     features: dict = field(default_factory=dict)  # FeatureSpec overrides (resolution, filter_voxels)
+
+
+def epoch_checkpoint_path(out: str | Path, epoch: int) -> Path:
+    """Where `--keep-epochs` writes epoch `epoch`'s weights next to `out` (m.pt → m.epoch03.pt).
+
+    Why: the validation split is generated, and a fine-tune's real-capture readings can drift away while
+    its validation score still rises (docs/model_card.md, r44), so every epoch is kept to be scored on real
+    data (benchmarks/bench_real_set.py) before one is picked."""
+    out = Path(out)
+    return out.with_name(f"{out.stem}.epoch{epoch:02d}{out.suffix}")
 
 
 def learning_rate(cfg: TrainConfig, step: int, total_steps: int, elapsed_s: float) -> float:
@@ -287,6 +298,8 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
                 best = val_score(summary)
                 meta.update(best_epoch=epoch + 1, val=summary)
                 save_checkpoint(out, net, spec, meta)
+            if cfg.keep_epochs:
+                save_checkpoint(epoch_checkpoint_path(out, epoch + 1), net, spec, {**meta, "epoch": epoch + 1, "val": summary})
             with atomic_path(side, suffix=".tmp") as tmp:
                 torch.save({"model": net.state_dict(), "optimizer": opt.state_dict(), "epoch": epoch + 1, "step": step,
                             "elapsed_s": elapsed, "best_score": best, "history_json": json.dumps(history),

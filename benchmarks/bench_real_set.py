@@ -1,0 +1,133 @@
+"""Benchmark (issue 12): the real development set, scored for a candidate checkpoint and the shipped one.
+
+The real assets in ../shared/real were made by no one in this project (captures and meshes; PROVENANCE.txt
+there), so this is the one material benchmark whose expected answers the model's own code did not produce.
+Each asset goes through the commands a user runs, with default flags: glTF meshes through
+`pixie convert X.glb X.ply`, then `pixie annotate IN OUT` (prepare included), then the set's own scorer
+`score.py expectations.json OUT`. The baseline is the shipped checkpoint, annotated in the same run; the
+report gives both scores per asset and the checks each one fails. No speed target.
+
+    python benchmarks/bench_real_set.py                                  # the shipped checkpoint alone (~40 s)
+    python benchmarks/bench_real_set.py --checkpoint cand.pt             # a candidate beside the shipped one
+    python benchmarks/bench_real_set.py --checkpoint a.pt --checkpoint b.pt --json real.json
+
+Needs ../shared/real (not part of a user's clone); `--real DIR` points elsewhere.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+SHIPPED = ROOT / "pixie_gs" / "data" / "checkpoints" / "pixie_default.pt"
+CLI = [sys.executable, "-m", "pixie_gs.cli.main"]
+ASSET_LINE = re.compile(r"^(?P<file>\S+): (?P<ok>\d+)/(?P<n>\d+) ")
+SUMMARY_LINE = re.compile(r"real plausibility: (\d+) of (\d+) checks, (\d+) of (\d+) assets")
+
+
+def source_for(entry_file: str, orig: Path) -> tuple[Path, bool]:
+    """(published file behind an expectations entry, whether it is a mesh to convert first)."""
+    stem = Path(entry_file).stem
+    for candidate, mesh in ((orig / f"{stem}.glb", True), (orig / entry_file, False),
+                            (orig / f"{stem}.compressed.ply", False)):
+        if candidate.exists():
+            return candidate, mesh
+    raise SystemExit(f"{orig}: no published file for expectations entry '{entry_file}'")
+
+
+def run(cmd: list[str]) -> None:
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    if done.returncode != 0:
+        last = (done.stderr or done.stdout).strip().splitlines()[-1:] or ["(no output)"]
+        raise SystemExit(f"command failed ({done.returncode}): {' '.join(cmd[2:])}: {last[0]}")
+
+
+def inputs(real: Path, work: Path) -> dict[str, Path]:
+    """Expectations file name → splat `pixie annotate` reads (meshes converted once, default flags)."""
+    entries = json.loads((real / "expectations.json").read_text())
+    out = {}
+    for entry in entries:
+        src, mesh = source_for(entry["file"], real / "orig")
+        if mesh:
+            converted = work / "inputs" / entry["file"]
+            converted.parent.mkdir(parents=True, exist_ok=True)
+            run(CLI + ["convert", str(src), str(converted), "-q", "--force"])
+            src = converted
+        out[entry["file"]] = src
+    return out
+
+
+def score(real: Path, files: dict[str, Path], checkpoint: Path, out_dir: Path) -> dict:
+    """Annotate every asset with `checkpoint` (default flags) into `out_dir` and score it."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    for name, src in files.items():
+        run(CLI + ["annotate", str(src), str(out_dir / name), "--device", "cpu", "--checkpoint", str(checkpoint),
+                   "-q", "--force"])
+    seconds = time.perf_counter() - t0
+    done = subprocess.run([sys.executable, str(real / "score.py"), str(real / "expectations.json"), str(out_dir)],
+                          capture_output=True, text=True)
+    if done.returncode != 0 and "real plausibility" not in done.stdout:
+        raise SystemExit(f"score.py failed: {(done.stderr or done.stdout).strip()[-300:]}")
+    assets, summary = {}, None
+    for line in done.stdout.splitlines():
+        m = ASSET_LINE.match(line)
+        if m:
+            failed = [part.split(":")[0].strip() for part in line.split("[FAIL]")[1:]]
+            assets[m["file"]] = {"passed": int(m["ok"]), "checks": int(m["n"]), "failed": failed}
+        s = SUMMARY_LINE.search(line)
+        if s:
+            summary = tuple(int(v) for v in s.groups())
+    if summary is None:
+        raise SystemExit(f"score.py printed no summary line for {checkpoint}")
+    return {"checkpoint": str(checkpoint), "checks_passed": summary[0], "checks": summary[1],
+            "assets_plausible": summary[2], "assets": summary[3], "annotate_s": round(seconds, 1),
+            "per_asset": assets}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--checkpoint", action="append", default=[], help="candidate checkpoint (repeatable)")
+    ap.add_argument("--real", default=str(ROOT.parent / "shared" / "real"), help="the real development set folder")
+    ap.add_argument("--work", default=None, help="folder for converted inputs and annotations (default: a temp dir)")
+    ap.add_argument("--json", default=None, help="also write every figure as JSON")
+    args = ap.parse_args()
+    real = Path(args.real)
+    if not (real / "expectations.json").exists():
+        raise SystemExit(f"{real}: no expectations.json (the real development set lives in ../shared/real)")
+    work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="pixie_real_"))
+    files = inputs(real, work)
+    checkpoints = [SHIPPED] + [Path(c) for c in args.checkpoint if Path(c).resolve() != SHIPPED.resolve()]
+    results = []
+    for k, ck in enumerate(checkpoints):
+        label = "shipped" if k == 0 else f"candidate{k}"
+        r = score(real, files, ck, work / label)
+        r["label"] = label
+        results.append(r)
+        print(f"{label:10s} {ck.name:24s} {r['checks_passed']:2d} of {r['checks']} checks, "
+              f"{r['assets_plausible']} of {r['assets']} assets plausible  (annotate {r['annotate_s']:.0f} s)")
+    base = results[0]
+    names = list(base["per_asset"])
+    print("\nper asset (checks passed)   " + "  ".join(f"{r['label']:>10s}" for r in results))
+    for name in names:
+        cells = "  ".join(f"{r['per_asset'].get(name, {}).get('passed', 0)}/{base['per_asset'][name]['checks']}"
+                          .rjust(10) for r in results)
+        print(f"  {name:25s} {cells}")
+    for r in results:
+        fails = [f"{n}: {', '.join(a['failed'])}" for n, a in r["per_asset"].items() if a["failed"]]
+        print(f"{r['label']} fails: " + ("; ".join(fails) if fails else "nothing"))
+    for r in results[1:]:
+        print(f"{r['label']} vs shipped: {r['checks_passed'] - base['checks_passed']:+d} checks "
+              f"({r['checks_passed']}/{r['checks']} against {base['checks_passed']}/{base['checks']})")
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()
