@@ -500,6 +500,53 @@ def test_train_refuses_a_network_the_checkpoint_loader_would_refuse(tmp_path, ca
     assert not (tmp_path / "m.pt").exists()
 
 
+@pytest.mark.parametrize("args,message", [
+    (["--anchor-weight", "0.5"], "--anchor-weight needs --init"),
+    (["--anchor-weight", "-1", "--init", "x.pt"], "--anchor-weight must be a finite number ≥ 0"),
+    (["--anchor-weight", "nan", "--init", "x.pt"], "--anchor-weight must be a finite number ≥ 0")])
+def test_train_refuses_an_anchor_it_cannot_apply(tmp_path, capsys, args, message):
+    from pixie_gs.cli.main import main
+
+    rc = main(["train", str(tmp_path), "--out", str(tmp_path / "m.pt"), *args, "--device", "cpu", "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1 and message in err[0], (rc, err)
+    assert not (tmp_path / "m.pt").exists()
+
+
+def test_anchor_weight_keeps_a_fine_tune_near_its_start_and_the_log_measures_the_drift(tmp_path):
+    """Fine-tuning the same start weights on the same data and seed, `--anchor-weight` (L2-SP) ends several
+    times closer to the start than no anchor; each epoch's logged `drift_sq` is Σ (θ − θ_start)² of that
+    epoch's weights, recomputed here from the two checkpoint files; `--resume` measures from the same start."""
+    from pixie_gs.cli.main import main
+
+    data = tmp_path / "data"
+    for split, count in (("train", 4), ("val", 2)):
+        assert main(["generate", str(data), "--count", str(count), "--split", split, "--gaussians", "400",
+                     "--classes", "sport_balls,soda_cans", "-q"]) == 0
+    common = ["--device", "cpu", "--resolution", "16", "--base-channels", "4", "--multipliers", "1,2",
+              "--batch-size", "2", "--seed", "3", "-q"]
+    start = tmp_path / "start.pt"
+    assert main(["train", str(data), "--out", str(start), "--epochs", "1", *common]) == 0
+
+    def distance(a, b) -> float:
+        wa, wb = a.model.state_dict(), b.model.state_dict()
+        names = [n for n, _ in a.model.named_parameters()]
+        return float(sum(((wa[n].double() - wb[n].double()) ** 2).sum() for n in names))
+
+    drift = {}
+    for weight in ("0", "1000"):
+        out = tmp_path / f"ft{weight}.pt"
+        tune = ["--init", str(start), "--lr", "5e-3", "--anchor-weight", weight, "--keep-epochs", *common]
+        assert main(["train", str(data), "--out", str(out), "--epochs", "1", *tune]) == 0
+        assert main(["train", str(data), "--out", str(out), "--epochs", "2", "--resume", *tune]) == 0
+        history = load_checkpoint(tmp_path / f"ft{weight}.epoch02.pt").meta["history"]
+        for row in history:
+            kept = load_checkpoint(tmp_path / f"ft{weight}.epoch{row['epoch']:02d}.pt")
+            assert row["drift_sq"] == pytest.approx(distance(kept, load_checkpoint(start)), rel=1e-3, abs=1e-6)
+        drift[weight] = history[-1]["drift_sq"]
+    assert drift["0"] > 0 and drift["1000"] < 0.2 * drift["0"], drift
+
+
 def test_object_context_adds_one_vector_per_object_that_depends_on_the_whole_grid():
     """The branch adds, at the bottleneck, the same vector to every voxel of an object: a function of the
     whole grid (an input far from a voxel changes it), different for each object of a batch."""

@@ -93,6 +93,10 @@ def test_building_several_steps_at_once_gives_the_same_batches(data):
     assert not torch.equal(plain.occupied, runs[0][0][1].occupied)
 
 
+def anchored_config(start: Path):
+    return tiny_config(init_from=str(start), anchor_weight=50.0)
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -167,6 +171,8 @@ def _worker(rank: int, world: int, port: int, data_dir: str, out_dir: str) -> No
             budget = "finished"
         except InputError as exc:
             budget = str(exc)
+        # a fine-tune of that run's weights with the L2-SP anchor: every rank adds the same penalty
+        train_mod.train(data_dir, out / "anchored.pt", anchored_config(out / "ddp.pt"), device, dist=ctx)
         torch.save({"grads": grads, "built": built_main, "saved": saved, "weights": weights, "budget": budget},
                    out / f"rank{rank}.pt")
     finally:
@@ -286,3 +292,22 @@ def test_torchrun_cli_resumes_a_preempted_run(data, tmp_path):
     assert [h["processes"] for h in history] == [1, 2] and history[1]["train_objects_per_s"] > 0
     log = json.loads((tmp_path / "log.json").read_text())["meta"]["history"]
     assert log == history
+
+
+def test_anchored_fine_tune_matches_one_process(two_ranks, data, tmp_path):
+    """`--anchor-weight` under DDP: each rank adds the same Σ (θ − θ_start)², and the run matches one process
+    doing the same fine-tune epoch by epoch, drift included."""
+    from pixie_gs.model.train import train
+    from pixie_gs.progress import set_quiet
+
+    out, _ = two_ranks
+    set_quiet(True)
+    try:
+        meta = train(data, tmp_path / "one.pt", anchored_config(out / "ddp.pt"), "cpu")
+    finally:
+        set_quiet(False)
+    ddp_history = json.loads(torch.load(str(out / "anchored.pt") + ".state.pt", weights_only=True)["history_json"])
+    assert all(row["drift_sq"] > 0 for row in ddp_history)
+    for a, b in zip(meta["history"], ddp_history, strict=True):
+        for key in ("train_loss", "val_loss", "drift_sq"):
+            assert a[key] == pytest.approx(b[key], rel=1e-3, abs=1e-6), key

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 from ..devices import DEVICE_CHOICES, DEVICE_HELP
 
@@ -48,6 +49,9 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--build-objects", type=int, default=None, metavar="N",
                    help="objects whose input grids are built in one pass, several steps' worth (default: up to "
                    "128 on CUDA as memory allows, one step on the CPU)")
+    p.add_argument("--anchor-weight", type=float, default=0.0, metavar="W",
+                   help="with --init: add W · Σ (θ − θ_init)² to the loss (L2-SP), keeping a fine-tune near its start "
+                   "weights; every epoch logs that sum as drift_sq (default 0: no penalty)")
     p.add_argument("--keep-epochs", action="store_true",
                    help="also write every epoch's weights as CKPT_STEM.epochNN.pt (to score each on real captures, "
                    "e.g. benchmarks/bench_real_set.py, before picking one)")
@@ -92,11 +96,16 @@ def run(args: argparse.Namespace) -> int:
                          f"{MULTIPLIER_RANGE[1]} (got '{args.multipliers}')")
     if not (0.0 <= args.tilt_deg <= 90.0 and 0.0 <= args.tilt_share <= 1.0):
         raise InputError("--tilt-deg must be within 0–90 and --tilt-share within 0–1")
+    if not (math.isfinite(args.anchor_weight) and args.anchor_weight >= 0.0):
+        raise InputError(f"--anchor-weight must be a finite number ≥ 0 (got {args.anchor_weight})")
+    if args.anchor_weight > 0 and not args.init:
+        raise InputError("--anchor-weight needs --init (the weights to stay near)")
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, time_budget_s=args.time_budget_s,
                       seed=args.seed, augment=not args.no_augment, workers=args.workers,
                       tilt_max_deg=args.tilt_deg, tilt_share=args.tilt_share,
                       limit_train=args.limit_train, limit_val=args.limit_val, input_mode=args.inputs,
                       init_from=args.init, objects_per_build=args.build_objects, keep_epochs=args.keep_epochs,
+                      anchor_weight=args.anchor_weight,
                       model={"base_channels": args.base_channels, "multipliers": mults, "res_blocks": args.res_blocks,
                              "context_width": args.context_width},
                       features={"resolution": args.resolution})

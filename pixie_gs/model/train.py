@@ -47,6 +47,7 @@ class TrainConfig:
     limit_val: int | None = None
     input_mode: str = "full"
     init_from: str | None = None  # start from this checkpoint's weights (same network config), fresh optimiser
+    anchor_weight: float = 0.0  # L2-SP: loss += w · Σ (θ − θ_init)² over the weights (needs init_from)
     keep_epochs: bool = False  # also write every epoch's weights (epoch_checkpoint_path) to pick among them later
     model: dict = field(default_factory=dict)  # ModelConfig overrides (base_channels, multipliers, …)
     objects_per_build: int | None = None  # grids built per call, several steps' worth (None: by device)
@@ -132,6 +133,18 @@ def batch_loss(model, batch: Batch, counts: bool, names: list[str], inputs: list
                              str(batch.occupied.device))
 
 
+def squared_distance(net, anchor: dict):
+    """Σ (θ − θ_anchor)² over `net`'s floating-point parameters (a differentiable 0-d tensor).
+
+    Why: the real-capture readings of every fine-tune so far moved with its distance from the start
+    weights (docs/model_card.md, r44); `--anchor-weight` adds this, scaled, to the loss (L2-SP, Li et al.
+    2018: weight decay toward the start instead of toward zero), and each epoch logs it as `drift_sq`."""
+    import torch
+
+    terms = [((p - anchor[name]) ** 2).sum() for name, p in net.named_parameters() if name in anchor]
+    return torch.stack(terms).sum() if terms else torch.zeros(())
+
+
 def validation_loss(model, store, spec: FeatureSpec, names: list[str], inputs: list[str], class_weight: float,
                     use_amp: bool, ctx: DistContext = SINGLE, batch_size: int = VAL_BATCH_CPU) -> float:
     """The training loss (no augmentation) averaged over every occupied voxel of the val split; each
@@ -196,6 +209,18 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         grown = load_init_weights(net, init.model, init.config, mcfg, cfg.init_from)
         stage(f"starting from the weights of {cfg.init_from}"
               + ("; the new object-context branch starts at zero (the same outputs)" if grown else ""))
+    # the start weights (after any growth), kept to measure and penalise the drift from them; on --resume
+    # they are rebuilt from --init, since the state holds only the current weights
+    anchor = None
+    if cfg.init_from:
+        start = net
+        if state:
+            from .checkpoint import load_checkpoint
+
+            start = MaterialUNet(mcfg)
+            init = load_checkpoint(cfg.init_from, "cpu")
+            load_init_weights(start, init.model, init.config, mcfg, cfg.init_from)
+        anchor = {name: p.detach().clone().to(device) for name, p in start.named_parameters()}
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     history: list[dict] = []
     start_epoch, step, elapsed_before, best = 0, 0, 0.0, -math.inf
@@ -253,6 +278,8 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
             for g in opt.param_groups:
                 g["lr"] = learning_rate(cfg, step, total_steps, elapsed)
             loss, value, parts = batch_loss(model, batch, counts, names, inputs, cfg.class_weight, use_amp, dist)
+            if cfg.anchor_weight > 0:  # every rank adds the same term: DDP's gradient mean keeps it as is
+                loss = loss + cfg.anchor_weight * squared_distance(net, anchor)
             if summarised < FEATURE_STATS_OBJECTS:
                 summaries.append(object_feature_summary(batch.inputs, batch.occupied).float().cpu())
                 summarised += cfg.batch_size if not dist.enabled else len(batch.means_unit)
@@ -289,10 +316,14 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
                    "val_accuracy": round(summary["voxel"]["accuracy"], 5),
                    "val_mse_avg": round(summary["voxel"]["mse_avg"], 5),
                    **{f"val_mse_{k}": round(summary["voxel"][f"mse_{k}"], 5) for k in ("log_E", "nu", "log_rho")}}
+            if anchor is not None:
+                with torch.no_grad():
+                    row["drift_sq"] = float(f"{float(squared_distance(net, anchor)):.6g}")  # 6 significant digits
             history.append(row)
             stage(f"epoch {epoch + 1}: loss {row['train_loss']:.4f}  val loss {val_loss:.4f}  "
                   f"val acc {row['val_accuracy']:.4f}  val mse {row['val_mse_avg']:.4f}  "
-                  f"({objects / train_seconds:.1f} objects/s, {elapsed:.0f} s)")
+                  f"({objects / train_seconds:.1f} objects/s, {elapsed:.0f} s)"
+                  + (f"  drift {row['drift_sq']:.3g}" if "drift_sq" in row else ""))
             meta["history"] = history
             if val_score(summary) > best:
                 best = val_score(summary)
