@@ -5,7 +5,8 @@ there), so this is the one material benchmark whose expected answers the model's
 Each asset goes through the commands a user runs, with default flags: glTF meshes through
 `pixie convert X.glb X.ply`, then `pixie annotate IN OUT` (prepare included), then the set's own scorer
 `score.py expectations.json OUT`. The baseline is the shipped checkpoint, annotated in the same run; the
-report gives both scores per asset and the checks each one fails. No speed target.
+report gives both scores per asset, the checks each one fails, and per check the share of the region's
+Gaussians that satisfies it beside the share asked (how close a pass is to a fail). No speed target.
 
     python benchmarks/bench_real_set.py                                  # the shipped checkpoint alone (~40 s)
     python benchmarks/bench_real_set.py --checkpoint cand.pt             # a candidate beside the shipped one
@@ -28,6 +29,7 @@ ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = ROOT / "pixie_gs" / "data" / "checkpoints" / "pixie_default.pt"
 CLI = [sys.executable, "-m", "pixie_gs.cli.main"]
 ASSET_LINE = re.compile(r"^(?P<file>\S+): (?P<ok>\d+)/(?P<n>\d+) ")
+CHECK = re.compile(r"\[(?P<verdict>ok|FAIL)\] (?P<region>[^:]+): (?P<share>[\d.]+) of \d+ \(need (?P<need>[\d.]+)\)")
 SUMMARY_LINE = re.compile(r"real plausibility: (\d+) of (\d+) checks, (\d+) of (\d+) assets")
 
 
@@ -79,8 +81,10 @@ def score(real: Path, files: dict[str, Path], checkpoint: Path, out_dir: Path) -
     for line in done.stdout.splitlines():
         m = ASSET_LINE.match(line)
         if m:
-            failed = [part.split(":")[0].strip() for part in line.split("[FAIL]")[1:]]
-            assets[m["file"]] = {"passed": int(m["ok"]), "checks": int(m["n"]), "failed": failed}
+            checks = [{"region": c["region"].strip(), "passed": c["verdict"] == "ok", "share": float(c["share"]),
+                       "need": float(c["need"])} for c in CHECK.finditer(line)]
+            assets[m["file"]] = {"passed": int(m["ok"]), "checks": int(m["n"]), "per_check": checks,
+                                 "failed": [c["region"] for c in checks if not c["passed"]]}
         s = SUMMARY_LINE.search(line)
         if s:
             summary = tuple(int(v) for v in s.groups())
@@ -119,6 +123,15 @@ def main() -> None:
         cells = "  ".join(f"{r['per_asset'].get(name, {}).get('passed', 0)}/{base['per_asset'][name]['checks']}"
                           .rjust(10) for r in results)
         print(f"  {name:25s} {cells}")
+    print("\nshare of each region's Gaussians that satisfies its check (need), per checkpoint; a pass by a few "
+          "points is one small change away from a fail")
+    for name in names:
+        for k, check in enumerate(base["per_asset"][name]["per_check"]):
+            cells = []
+            for r in results:
+                mine = r["per_asset"].get(name, {}).get("per_check", [])
+                cells.append(f"{mine[k]['share']:.3f}{'' if mine[k]['passed'] else '✗'}" if k < len(mine) else "-")
+            print(f"  {name[:-4] + ': ' + check['region']:52s} need {check['need']:.2f}  " + "  ".join(f"{c:>7s}" for c in cells))
     for r in results:
         fails = [f"{n}: {', '.join(a['failed'])}" for n, a in r["per_asset"].items() if a["failed"]]
         print(f"{r['label']} fails: " + ("; ".join(fails) if fails else "nothing"))
