@@ -58,7 +58,8 @@ def reading_gradient(loaded: LoadedModel, cloud: SplatCloud, up, selected: np.nd
     vox = np.clip((grid.extra["means_unit"][selected] * n).astype(np.int64), 0, n - 1)
     flat = torch.as_tensor(vox[:, 0] * n * n + vox[:, 1] * n + vox[:, 2])
     x = select_inputs(torch.as_tensor(grid.values)[None].clone(), grid.channels, loaded.config.input_channels)
-    held = [i for i, name in enumerate(loaded.config.input_channels) if name in set(untrained_channels(loaded.meta))]
+    untrained = set(untrained_channels(loaded.meta))
+    held = [i for i, name in enumerate(loaded.config.input_channels) if name in untrained]
     if held:  # as inference does: channels never seen varying are held at zero
         x[:, held] = 0
     params = _trainable(loaded)
