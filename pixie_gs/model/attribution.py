@@ -19,7 +19,7 @@ from ..field import feature_grid
 from ..splat import SplatCloud
 from .batch import build_batch
 from .checkpoint import LoadedModel
-from .predict import grid_channel_names, select_inputs, untrained_channels
+from .predict import grid_channel_names, model_inputs
 
 QUANTITIES = ("log_E", "nu", "log_rho")  # the physical head's channels, in order
 
@@ -57,11 +57,7 @@ def reading_gradient(loaded: LoadedModel, cloud: SplatCloud, up, selected: np.nd
     n = spec.resolution
     vox = np.clip((grid.extra["means_unit"][selected] * n).astype(np.int64), 0, n - 1)
     flat = torch.as_tensor(vox[:, 0] * n * n + vox[:, 1] * n + vox[:, 2])
-    x = select_inputs(torch.as_tensor(grid.values)[None].clone(), grid.channels, loaded.config.input_channels)
-    untrained = set(untrained_channels(loaded.meta))
-    held = [i for i, name in enumerate(loaded.config.input_channels) if name in untrained]
-    if held:  # as inference does: channels never seen varying are held at zero
-        x[:, held] = 0
+    x = model_inputs(loaded, torch.as_tensor(grid.values)[None], grid.channels)  # as inference builds it
     params = _trainable(loaded)
     loaded.model.zero_grad(set_to_none=True)
     _, physical = loaded.model(x)

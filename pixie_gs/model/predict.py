@@ -143,17 +143,24 @@ def voxel_confidence(logits, occupied):
     return torch.where(occupied, p.max(dim=1).values, torch.zeros_like(p[:, 0]))
 
 
+def model_inputs(loaded: LoadedModel, values, channel_names: list[str]):
+    """The network's input (B, C_in, …) from full grid tensors `values` (a copy: `values` stays as given),
+    with the channels it never saw varying (`untrained_channels`) held at zero, as in its training."""
+    x = select_inputs(values, channel_names, loaded.config.input_channels)
+    untrained = set(untrained_channels(loaded.meta))
+    held = [i for i, name in enumerate(loaded.config.input_channels) if name in untrained]
+    if held:
+        x[:, held] = 0
+    return x
+
+
 def _forward(loaded: LoadedModel, values, channel_names: list[str]):
     """Raw (logits, physical clamped to the label ranges) of full grid tensors."""
     import torch
 
     from .infer import fast_forward, fast_path_applies
 
-    x = select_inputs(values, channel_names, loaded.config.input_channels)  # a copy: `values` stays as given
-    untrained = set(untrained_channels(loaded.meta))
-    held = [i for i, name in enumerate(loaded.config.input_channels) if name in untrained]
-    if held:
-        x[:, held] = 0
+    x = model_inputs(loaded, values, channel_names)
     with torch.inference_mode():
         if x.device.type == "cuda":
             with torch.autocast("cuda", dtype=torch.bfloat16):

@@ -202,24 +202,19 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
     inputs = list(INPUT_MODES[cfg.input_mode] or names)
     mcfg = ModelConfig(input_channels=inputs, **cfg.model)
     net = MaterialUNet(mcfg).to(device)
-    if cfg.init_from and not state:
+    # the start weights (after any growth): each epoch logs the drift from them, --anchor-weight penalises
+    # it; on --resume they are rebuilt from --init in a spare network, since the state holds only the
+    # current weights
+    anchor = None
+    if cfg.init_from:
         from .checkpoint import load_checkpoint
 
         init = load_checkpoint(cfg.init_from, "cpu")
-        grown = load_init_weights(net, init.model, init.config, mcfg, cfg.init_from)
-        stage(f"starting from the weights of {cfg.init_from}"
-              + ("; the new object-context branch starts at zero (the same outputs)" if grown else ""))
-    # the start weights (after any growth), kept to measure and penalise the drift from them; on --resume
-    # they are rebuilt from --init, since the state holds only the current weights
-    anchor = None
-    if cfg.init_from:
-        start = net
-        if state:
-            from .checkpoint import load_checkpoint
-
-            start = MaterialUNet(mcfg)
-            init = load_checkpoint(cfg.init_from, "cpu")
-            load_init_weights(start, init.model, init.config, mcfg, cfg.init_from)
+        start = MaterialUNet(mcfg) if state else net
+        grown = load_init_weights(start, init.model, init.config, mcfg, cfg.init_from)
+        if not state:
+            stage(f"starting from the weights of {cfg.init_from}"
+                  + ("; the new object-context branch starts at zero (the same outputs)" if grown else ""))
         anchor = {name: p.detach().clone().to(device) for name, p in start.named_parameters()}
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     history: list[dict] = []
