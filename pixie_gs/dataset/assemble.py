@@ -13,6 +13,7 @@ import numpy as np
 from ..convert import mesh_to_splat
 from ..errors import InputError
 from ..splat import SplatCloud
+from .leftovers import LEFTOVER_OBJECT_SHARE, interior_leftovers, leftover_rng
 from .labels import ClassSpec, choose_parts, sample_part_values
 from .primitives import rotation_z
 from .realism import capture_like, draw_surface_only
@@ -101,12 +102,24 @@ def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int, realistic:
                               opacity=opacity)
         clouds.append(cloud)
         part_ids.append(np.full(len(cloud), spec.part(piece.part).part_id, np.int32))
+    for cloud in clouds:
+        cloud.log_scales = (cloud.log_scales + np.float32(math.log(size_factor))).astype(np.float32)
+    leftover_count = 0
+    if realistic:
+        lrng = leftover_rng(object_seed)
+        if lrng.random() < LEFTOVER_OBJECT_SHARE:
+            inner = interior_leftovers([p.mesh for p in pieces], clouds, lrng)
+            extra = [(c, np.full(len(c), ids[0], np.int32)) for c, ids in zip(inner, part_ids) if c is not None]
+            leftover_count = sum(len(c) for c, _ in extra)
+            clouds += [c for c, _ in extra]
+            part_ids += [ids for _, ids in extra]
     cloud = SplatCloud.concatenate(clouds)
-    cloud.log_scales = (cloud.log_scales + np.float32(math.log(size_factor))).astype(np.float32)
     part_id = np.concatenate(part_ids)
     realism = None
     if realistic:
-        cloud, part_id, realism = capture_like(cloud, part_id, rng)
+        opaque = np.zeros(len(cloud), bool)
+        opaque[len(cloud) - leftover_count:] = leftover_count > 0
+        cloud, part_id, realism = capture_like(cloud, part_id, rng, keep_opacity=opaque)
     by_id = {spec.part(name).part_id: name for name in present}
     n = len(cloud)
     material = np.empty(n, np.int32)

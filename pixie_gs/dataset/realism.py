@@ -54,11 +54,13 @@ class RealismRecord:
     floaters: int
     tilt_deg: float
     textured_parts: int = 0
+    leftovers: int = 0
 
     def to_dict(self) -> dict:
         return {"opacity_mode": self.opacity_mode, "sh_degree": self.sh_degree,
                 "sh_energy": round(self.sh_energy, 4), "dropped": self.dropped, "floaters": self.floaters,
-                "tilt_deg": round(self.tilt_deg, 3), "textured_parts": self.textured_parts}
+                "tilt_deg": round(self.tilt_deg, 3), "textured_parts": self.textured_parts,
+                "leftovers": self.leftovers}
 
 
 def draw_surface_only(rng: np.random.Generator) -> bool:
@@ -144,13 +146,17 @@ def _tilt(rng: np.random.Generator) -> tuple[np.ndarray, float]:
     return horizontal_tilt(math.radians(angle), phi), angle
 
 
-def capture_like(cloud: SplatCloud, part_id: np.ndarray, rng: np.random.Generator
-                 ) -> tuple[SplatCloud, np.ndarray, RealismRecord]:
-    """A capture-like version of `cloud` (and its per-Gaussian part ids), with what was done."""
+def capture_like(cloud: SplatCloud, part_id: np.ndarray, rng: np.random.Generator,
+                 keep_opacity: np.ndarray | None = None) -> tuple[SplatCloud, np.ndarray, RealismRecord]:
+    """A capture-like version of `cloud` (and its per-Gaussian part ids), with what was done.
+
+    keep_opacity: (n,) bool, Gaussians whose opacity stays as given (the interior leftovers of
+    `leftovers.py`, opaque in captures); every other step applies to them as to the rest."""
     keep = _keep_mask(cloud, part_id, rng)
     dropped = int((~keep).sum())
+    held = np.zeros(len(cloud), bool) if keep_opacity is None else np.asarray(keep_opacity, bool)
     if dropped:
-        cloud, part_id = cloud.subset(np.nonzero(keep)[0]), part_id[keep]
+        cloud, part_id, held = cloud.subset(np.nonzero(keep)[0]), part_id[keep], held[keep]
     n = len(cloud)
 
     # floaters: faint Gaussians scattered in the object's box, labelled like their nearest Gaussian
@@ -165,6 +171,7 @@ def capture_like(cloud: SplatCloud, part_id: np.ndarray, rng: np.random.Generato
         extra.means = pos
         cloud = SplatCloud.concatenate([cloud, extra])
         part_id = np.concatenate([part_id, part_id[near]])
+        held = np.concatenate([held, np.zeros(n_float, bool)])
         n = len(cloud)
     floater = np.zeros(n, bool)
     floater[n - n_float:] = n_float > 0
@@ -188,6 +195,7 @@ def capture_like(cloud: SplatCloud, part_id: np.ndarray, rng: np.random.Generato
         mode = "constant"
         logit = cloud.opacity_logits.astype(np.float64)
     logit[big | floater] -= rng.uniform(1.0, 3.0, int((big | floater).sum()))
+    logit[held] = cloud.opacity_logits[held]
     cloud.opacity_logits = np.clip(logit, -7.0, 7.0).astype(np.float32)
 
     # texture, then colour noise, on the DC term (RGB = 0.5 + C0·dc)
@@ -226,4 +234,5 @@ def capture_like(cloud: SplatCloud, part_id: np.ndarray, rng: np.random.Generato
                 nrm = np.stack([cloud.get(c) for c in names], 1) @ R.T
                 for j, c in enumerate(names):
                     cloud.set(c, nrm[:, j].astype(np.float32))
-    return cloud, part_id, RealismRecord(mode, degree, energy, dropped, n_float, angle, textured)
+    return cloud, part_id, RealismRecord(mode, degree, energy, dropped, n_float, angle, textured,
+                                         int(held.sum()))
