@@ -6,7 +6,8 @@
 #           then watch it
 #   watch   watch the run again
 # Each call returns after WATCH_S seconds or when the run ends, whichever comes first, and copies the
-# run's checkpoint, its training state, the per-epoch log and the test evaluation into $OUT, so a machine
+# run's checkpoint, its training state, the per-epoch log and the test evaluation into $OUT (with
+# --keep-epochs also the epoch weights not sent before, in epochs_NN-MM.tar; `tar -xf` them here), so a machine
 # lost between calls costs only the time since the last copy. The run's options are the environment of
 # gpu_train_default.sh (TOTAL_S, TRAIN_TIERS, EXTRA_TRAIN_ARGS, …), given to `start`.
 # usage (repo root, device call):  RUN=/root/run WATCH_S=540 OUT=$OUT scripts/gpu_train_chain.sh start
@@ -18,6 +19,7 @@ mode=${1:?usage: gpu_train_chain.sh start|watch}
 OUT=${OUT:?set OUT to the folder that comes back}
 RUN=${RUN:-/root/run}
 WATCH_S=${WATCH_S:-540}
+EPOCHS_PER_TAR=${EPOCHS_PER_TAR:-6}   # --keep-epochs weights per tar sent back (≤ 16 MiB a file)
 T0=$(date +%s)
 mkdir -p "$OUT"
 
@@ -44,10 +46,22 @@ fi
 
 running() { kill -0 "$(cat "$RUN/pid" 2>/dev/null)" 2>/dev/null; }
 snapshot() {
-  for f in pixie_default.pt pixie_default.pt.state.pt train_pixie_default.json train_logs.json eval_pixie_default.json log.txt daemon.txt; do
+  # at most 8 files come back per call (16 MiB each): five here (daemon.txt stays on the machine; log.txt has
+  # its lines), and the --keep-epochs weights not sent before go in tars of up to EPOCHS_PER_TAR (2.5 MB each)
+  for f in pixie_default.pt pixie_default.pt.state.pt train_pixie_default.json train_logs.json eval_pixie_default.json log.txt; do
     [ -f "$RUN/$f" ] && cp "$RUN/$f" "$OUT/"
   done
-  cp "$RUN"/pixie_default.epoch*.pt "$OUT/" 2>/dev/null || true   # with --keep-epochs: every epoch's weights
+  local new=() f
+  for f in $(ls "$RUN" | grep -E '^pixie_default\.epoch[0-9]+\.pt$' | sort -V); do  # epoch order, 99 before 100
+    grep -qxF "$f" "$RUN/epochs_sent.txt" 2>/dev/null || new+=("$f")
+  done
+  local i=0
+  while [ $i -lt ${#new[@]} ] && [ $(( i / EPOCHS_PER_TAR )) -lt 3 ]; do
+    local chunk=("${new[@]:$i:$EPOCHS_PER_TAR}")
+    local first=${chunk[0]#pixie_default.epoch} last=${chunk[-1]#pixie_default.epoch}
+    tar -cf "$OUT/epochs_${first%.pt}-${last%.pt}.tar" -C "$RUN" "${chunk[@]}" && printf '%s\n' "${chunk[@]}" >>"$RUN/epochs_sent.txt"
+    i=$(( i + EPOCHS_PER_TAR ))
+  done
   python3 - "$RUN" <<'PY' || true
 import json, pathlib, sys
 run = pathlib.Path(sys.argv[1])
