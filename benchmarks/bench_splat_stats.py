@@ -1,7 +1,7 @@
 """Per-Gaussian statistics of real captures vs generated training objects (issue 12).
 
 For each splat: opacity α, log std-dev relative to the object's size (log10 of mean σ / robust
-extent), anisotropy log10(σ_max/σ_min), ‖f_rest‖ per SH degree, colour noise (|RGB − mean RGB of the
+extent, and of the largest σ: large Gaussians fill a grid as a solid would), anisotropy log10(σ_max/σ_min), ‖f_rest‖ per SH degree, colour noise (|RGB − mean RGB of the
 8 nearest neighbours|), nearest-neighbour spacing relative to the extent, and the floater share
 (Gaussians whose 8th-neighbour distance is over 5× the median). Real captures pooled vs generated
 objects pooled: quantiles (5/25/50/75/95 %) and the two-sample Kolmogorov–Smirnov distance D.
@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT))
 from pixie_gs.splat import read_splat  # noqa: E402
 
 REAL = ["redplant.ply", "pool.ply", "guitar.compressed.ply", "donut_fused.ply"]
-STATS = ["opacity", "log10_rel_scale", "log10_anisotropy", "f_rest_deg1", "f_rest_deg2", "f_rest_deg3",
+STATS = ["opacity", "log10_rel_scale", "log10_rel_max_scale", "log10_anisotropy", "f_rest_deg1", "f_rest_deg2", "f_rest_deg3",
          "colour_noise", "log10_rel_spacing", "floater"]
 PER_SPLAT = 40_000  # Gaussians sampled per splat (each splat weighs the same)
 
@@ -41,6 +41,7 @@ def splat_stats(path: Path, rng: np.random.Generator) -> dict[str, np.ndarray]:
     s = c.scales.astype(np.float64)
     out = {"opacity": c.opacities.astype(np.float64),
            "log10_rel_scale": np.log10(s.mean(1) / extent),
+           "log10_rel_max_scale": np.log10(s.max(1) / extent),  # the tail: large Gaussians filling a grid
            "log10_anisotropy": np.log10(s.max(1) / np.maximum(s.min(1), 1e-12))}
     rest = c.sh_rest.astype(np.float64)
     k = rest.shape[1] // 3
