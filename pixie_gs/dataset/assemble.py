@@ -118,7 +118,7 @@ def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int, realistic:
     realism = None
     if realistic:
         opaque = np.zeros(len(cloud), bool)
-        opaque[len(cloud) - leftover_count:] = leftover_count > 0
+        opaque[len(cloud) - leftover_count:] = True  # the leftovers, appended last
         cloud, part_id, realism = capture_like(cloud, part_id, rng, keep_opacity=opaque)
     by_id = {spec.part(name).part_id: name for name in present}
     n = len(cloud)

@@ -20,6 +20,7 @@ import numpy as np
 from ..convert import is_closed, sample_interior
 from ..errors import InputError
 from ..splat import SplatCloud, rotmat_to_quat
+from .primitives import random_rotation
 
 LEFTOVER_OBJECT_SHARE = 0.3  # realistic objects that hold interior leftovers
 LEFTOVER_COUNT_SHARE = (0.05, 0.3)  # their number, as a share of the object's other Gaussians
@@ -33,14 +34,6 @@ LEFTOVER_STREAM = 7177  # second entry of the leftover RNG's seed: [object seed,
 def leftover_rng(object_seed: int) -> np.random.Generator:
     """The leftovers' own RNG for one object (independent of the object's main stream)."""
     return np.random.default_rng([int(object_seed), LEFTOVER_STREAM])
-
-
-def _random_rotations(rng: np.random.Generator, n: int) -> np.ndarray:
-    """(n,3,3) uniformly random rotations (QR of Gaussian matrices, signs fixed)."""
-    q, r = np.linalg.qr(rng.normal(size=(n, 3, 3)))
-    q = q * np.sign(np.diagonal(r, axis1=1, axis2=2))[:, None, :]
-    q[np.linalg.det(q) < 0, :, 0] *= -1
-    return q
 
 
 def interior_leftovers(meshes: list, surface: list[SplatCloud], rng: np.random.Generator
@@ -74,7 +67,7 @@ def interior_leftovers(meshes: list, surface: list[SplatCloud], rng: np.random.G
         sigma = np.stack([s_max, s_max * rng.uniform(*LEFTOVER_MID_RATIO, count),
                           s_max * rng.uniform(*LEFTOVER_MIN_RATIO, count)], 1)
         inner.log_scales = np.log(sigma).astype(np.float32)
-        inner.rotations = rotmat_to_quat(_random_rotations(rng, count)).astype(np.float32)
+        inner.rotations = rotmat_to_quat(random_rotation(rng, count)).astype(np.float32)
         inner.opacity_logits = rng.normal(*LEFTOVER_OPACITY_LOGIT, count).astype(np.float32)
         for name in ("nx", "ny", "nz"):
             if inner.has(name):

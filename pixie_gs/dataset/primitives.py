@@ -160,10 +160,9 @@ def rotation_z(angle_rad: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def random_rotation(rng: np.random.Generator) -> np.ndarray:
-    """Uniform random 3×3 rotation (QR of a Gaussian matrix, sign-fixed)."""
-    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
-    q = q * np.sign(np.diag(r))
-    if np.linalg.det(q) < 0:
-        q[:, 0] = -q[:, 0]
+def random_rotation(rng: np.random.Generator, n: int | None = None) -> np.ndarray:
+    """Uniform random 3×3 rotation (QR of a Gaussian matrix, sign-fixed); `n` of them, (n,3,3), when given."""
+    q, r = np.linalg.qr(rng.normal(size=(3, 3) if n is None else (n, 3, 3)))
+    q = q * np.sign(np.diagonal(r, axis1=-2, axis2=-1))[..., None, :]
+    q[..., :, 0] *= np.where(np.linalg.det(q) < 0, -1.0, 1.0)[..., None]
     return q
