@@ -32,7 +32,6 @@ def main() -> None:
     import matplotlib.pyplot as plt
 
     from pixie_gs.annotate import annotate_cloud
-    from pixie_gs.dataset import assemble
     from pixie_gs.dataset.assemble import build_object
     from pixie_gs.dataset.generate import object_seed
     from pixie_gs.dataset.labels import load_class_table
@@ -45,9 +44,9 @@ def main() -> None:
     table = load_class_table()
     generated = {}
     for share, name in ((0.0, "generated doughnut"), (1.0, "with interior leftovers")):
-        assemble.LEFTOVER_OBJECT_SHARE = share
         for i in range(args.seed, args.seed + 200):
-            cloud, record = build_object(table["bread"], object_seed(81, "test", i), 45_000, realistic=True)
+            cloud, record = build_object(table["bread"], object_seed(81, "test", i), 45_000, realistic=True,
+                                         leftover_share=share)
             if record["shape"].get("kind") == "donut":
                 generated[name] = cloud
                 break

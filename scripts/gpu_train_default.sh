@@ -34,13 +34,14 @@ for split in train val test; do
     # a tier "COUNT:GAUSSIANS:clean" makes its objects as `pixie convert` writes a mesh (`generate --clean`);
     # "COUNT:GAUSSIANS:capture|clean:CLASS,CLASS" draws only those classes (a tier that leans on a few);
     # "COUNT:GAUSSIANS:pairs|clean-pairs" makes every object a pair (`generate --pairs 1`, half the Gaussians each);
-    # "COUNT:GAUSSIANS:floors|clean-floors" stands every object on a floor disc (`generate --floors 1`)
+    # "COUNT:GAUSSIANS:floors|clean-floors" stands every object on a floor disc (`generate --floors 1`);
+    # "COUNT:GAUSSIANS:leftovers" gives every capture-like object interior leftovers (`generate --leftovers 1`)
     IFS=: read -r n g look only <<<"$tier"
     gen_args=""
     case "${look:-capture}" in
       capture) ;; clean) gen_args="--clean" ;; pairs) gen_args="--pairs 1" ;; clean-pairs) gen_args="--clean --pairs 1" ;;
-      floors) gen_args="--floors 1" ;; clean-floors) gen_args="--clean --floors 1" ;;
-      *) say "unknown tier look '$look' in '$tier' (capture, clean, pairs, clean-pairs, floors, clean-floors)"; exit 1 ;;
+      floors) gen_args="--floors 1" ;; clean-floors) gen_args="--clean --floors 1" ;; leftovers) gen_args="--leftovers 1" ;;
+      *) say "unknown tier look '$look' in '$tier' (capture, clean, pairs, clean-pairs, floors, clean-floors, leftovers)"; exit 1 ;;
     esac
     [ -n "${only:-}" ] && gen_args="$gen_args --classes $only"
     part="$DATA/parts/$split$k"

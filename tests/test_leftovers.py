@@ -4,10 +4,10 @@ generator's own numbers."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import trimesh
 
 from pixie_gs.convert import mesh_to_splat
-from pixie_gs.dataset import assemble
 from pixie_gs.dataset.assemble import build_object
 from pixie_gs.dataset.labels import load_class_table
 from pixie_gs.dataset.realism import capture_like
@@ -58,12 +58,10 @@ def test_leftovers_fill_the_grid_inside_a_shell():
     assert centre[0] == 0.0 and centre[1] > 0.5, centre
 
 
-def test_build_object_records_leftovers(monkeypatch):
+def test_build_object_records_leftovers():
     spec = TABLE["bread"]
-    monkeypatch.setattr(assemble, "LEFTOVER_OBJECT_SHARE", 0.0)
-    plain, rec0 = build_object(spec, 5, 3000, realistic=True)
-    monkeypatch.setattr(assemble, "LEFTOVER_OBJECT_SHARE", 1.0)
-    with_left, rec1 = build_object(spec, 5, 3000, realistic=True)
+    plain, rec0 = build_object(spec, 5, 3000, realistic=True, leftover_share=0.0)
+    with_left, rec1 = build_object(spec, 5, 3000, realistic=True, leftover_share=1.0)
     assert rec0["realism"]["leftovers"] == 0 and rec1["realism"]["leftovers"] > 0
     assert len(with_left) > len(plain)
     assert set(np.unique(with_left.get("part_id"))) == set(np.unique(plain.get("part_id")))
@@ -92,3 +90,26 @@ def test_leftover_stream_is_separate_from_the_object_stream():
     """The leftover RNG depends on the object seed only, so objects that draw none are unchanged."""
     a, b = leftover_rng(7).random(4), leftover_rng(7).random(4)
     assert np.array_equal(a, b) and not np.array_equal(a, np.random.default_rng(7).random(4))
+
+
+def test_generate_leftover_share_decides_which_objects_hold_them(tmp_path):
+    """`generate_split(leftover_share=…)`: 0 gives no object leftovers, 1 gives every capture-like object
+    with a closed piece some; clean objects never get any; a share outside 0–1 is refused."""
+    import json
+
+    from pixie_gs.dataset.generate import generate_split
+    from pixie_gs.errors import InputError
+
+    counts = {}
+    for share in (0.0, 1.0):
+        split = generate_split(tmp_path / f"s{share}", 4, classes=["bread", "stones"], seed=3,
+                               n_gaussians=1500, leftover_share=share)
+        records = [json.loads(p.read_text()) for p in sorted(split.glob("0*.json"))]
+        counts[share] = [r["realism"]["leftovers"] for r in records]
+        assert json.loads((split / "index.json").read_text())["leftover_share"] == share
+    assert counts[0.0] == [0, 0, 0, 0] and all(n > 0 for n in counts[1.0]), counts
+    clean = generate_split(tmp_path / "clean", 2, classes=["bread"], seed=3, n_gaussians=1500, realistic=False,
+                           leftover_share=1.0)
+    assert json.loads((clean / "index.json").read_text())["leftover_share"] == 0.0
+    with pytest.raises(InputError, match="--leftovers"):
+        generate_split(tmp_path / "bad", 1, leftover_share=1.5)

@@ -37,6 +37,10 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--floors", type=float, default=0.0, metavar="SHARE",
                    help="share of objects (0-1) standing on a floor disc labelled stationary, as a capture "
                         "on a table or the ground holds it (default 0)")
+    p.add_argument("--leftovers", type=float, default=None, metavar="SHARE",
+                   help="share of capture-like objects (0-1) holding interior leftovers: large opaque Gaussians "
+                        "inside closed pieces, which no camera of a real capture sees to remove (default 0.3, "
+                        "dataset/leftovers.py; none with --clean)")
     p.add_argument("--force", action="store_true", help="replace an existing split")
     p.set_defaults(func=run)
     return p
@@ -44,6 +48,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
 
 def run(args: argparse.Namespace) -> int:
     from ..dataset.generate import generate_split
+    from ..dataset.leftovers import LEFTOVER_OBJECT_SHARE
     from ..dataset.preview import write_preview
     from ..errors import InputError
     from ..progress import stage
@@ -58,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
     split_dir = generate_split(args.out_dir, args.count, classes=classes, seed=args.seed, split=args.split,
                                workers=args.workers, n_gaussians=args.gaussians, table_path=args.table,
                                force=args.force, realistic=not args.clean,
-                               pair_share=args.pairs, floor_share=args.floors)
+                               pair_share=args.pairs, floor_share=args.floors,
+                               leftover_share=LEFTOVER_OBJECT_SHARE if args.leftovers is None else args.leftovers)
     stage(f"wrote {split_dir}/index.json")
     if args.preview:
         shown = write_preview(args.out_dir, args.split, args.preview)

@@ -53,12 +53,14 @@ def extent_record(cloud: SplatCloud) -> dict:
             "bounds_max_m": [round(float(v), 5) for v in hi]}
 
 
-def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int, realistic: bool = False
-                 ) -> tuple[SplatCloud, dict]:
+def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int, realistic: bool = False,
+                 leftover_share: float = LEFTOVER_OBJECT_SHARE) -> tuple[SplatCloud, dict]:
     """One labelled object of class `spec` from `object_seed`, about `n_gaussians` Gaussians.
 
     realistic: make it look like a trained capture (pixie_gs/dataset/realism.py: opacity and shape
-    spread, view-dependent colour, partial surfaces, floaters, a small tilt).
+    spread, view-dependent colour, partial surfaces, floaters, a small tilt). leftover_share: the chance
+    (0–1) that a realistic object holds interior leftovers (dataset/leftovers.py); the draw comes from the
+    leftovers' own RNG, so objects that draw none are the same for any share.
 
     Returns the cloud (with material_id, E, nu, density, part_id per Gaussian) and its index
     record (class, parts with sampled values and counts, seed, shape parameters).
@@ -107,7 +109,7 @@ def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int, realistic:
     leftover_count = 0
     if realistic:
         lrng = leftover_rng(object_seed)
-        if lrng.random() < LEFTOVER_OBJECT_SHARE:
+        if lrng.random() < leftover_share:
             inner = interior_leftovers([p.mesh for p in pieces], clouds, lrng)
             extra = [(c, np.full(len(c), ids[0], np.int32)) for c, ids in zip(inner, part_ids) if c is not None]
             leftover_count = sum(len(c) for c, _ in extra)

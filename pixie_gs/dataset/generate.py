@@ -24,6 +24,7 @@ from ..errors import InputError
 from ..progress import is_quiet, progress, set_quiet
 from .assemble import build_object, extent_record
 from .labels import ClassSpec, load_class_table
+from .leftovers import LEFTOVER_OBJECT_SHARE
 from .floor import floor_record, with_floor
 from .pairs import MIN_PAIR_GAUSSIANS, build_pair
 
@@ -98,6 +99,7 @@ class ObjectTask:
     realistic: bool = True
     partner: str | None = None  # the partner's category: this object is a pair (dataset/pairs.py)
     floor_seed: int | None = None  # the object stands on a floor drawn from this seed (dataset/floor.py)
+    leftover_share: float = LEFTOVER_OBJECT_SHARE  # chance of interior leftovers (dataset/leftovers.py)
 
 
 _TABLE_CACHE: dict[str | None, dict[str, ClassSpec]] = {}
@@ -116,10 +118,11 @@ def write_object(task: ObjectTask) -> dict:
     set_quiet(True)  # per-piece bars (e.g. the converter's interior fill) would bury the object bar
     try:
         if task.partner is None:
-            cloud, record = build_object(spec, task.seed, task.n_gaussians, task.realistic)
+            cloud, record = build_object(spec, task.seed, task.n_gaussians, task.realistic, task.leftover_share)
         else:
             partner = _table(task.table_path)[task.partner]
-            cloud, record = build_pair(spec, partner, task.seed, task.n_gaussians, task.realistic)
+            cloud, record = build_pair(spec, partner, task.seed, task.n_gaussians, task.realistic,
+                                       task.leftover_share)
         if task.floor_seed is not None:
             cloud, n_floor = with_floor(cloud, np.random.default_rng(task.floor_seed))
             record = {**record, **extent_record(cloud), "floor": floor_record(n_floor)}
@@ -152,7 +155,8 @@ def resolve_classes(table: dict[str, ClassSpec], names: list[str] | None) -> lis
 def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None = None, seed: int = 0,
                    split: str = "train", workers: int = 1, n_gaussians: int = 50_000,
                    table_path: str | Path | None = None, force: bool = False, realistic: bool = True,
-                   pair_share: float = 0.0, floor_share: float = 0.0) -> Path:
+                   pair_share: float = 0.0, floor_share: float = 0.0,
+                   leftover_share: float = LEFTOVER_OBJECT_SHARE) -> Path:
     """Write `count` objects of `split` under `out_dir`; returns the split directory.
 
     Classes are assigned round-robin; objects are built in `workers` spawned processes (1: in this
@@ -160,6 +164,7 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
     captures (pixie_gs/dataset/realism.py); False gives the clean converter output. `pair_share`: the
     share of objects stood beside a partner of another category (dataset/pairs.py; needs ≥ 2 classes).
     `floor_share`: the share stood on a floor disc labelled stationary (dataset/floor.py).
+    `leftover_share`: the share of realistic objects holding interior leftovers (dataset/leftovers.py).
     """
     if count < 1:
         raise InputError(f"--count must be ≥ 1 (got {count})")
@@ -171,6 +176,8 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
         raise InputError(f"--pairs must be a share from 0 to 1 (got {pair_share})")
     if not 0.0 <= floor_share <= 1.0:
         raise InputError(f"--floors must be a share from 0 to 1 (got {floor_share})")
+    if not 0.0 <= leftover_share <= 1.0:
+        raise InputError(f"--leftovers must be a share from 0 to 1 (got {leftover_share})")
     if pair_share > 0 and n_gaussians < MIN_PAIR_GAUSSIANS:
         raise InputError(f"--pairs needs --gaussians ≥ {MIN_PAIR_GAUSSIANS} (half for each object; got {n_gaussians})")
     table_arg = None if table_path is None else str(Path(table_path).resolve())
@@ -193,7 +200,7 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
     partial.mkdir()
     tasks = [ObjectTask(i, class_for_index(i, chosen), object_seed(seed, split, i), n_gaussians, str(partial),
                         table_arg, realistic, partner_for_index(seed, split, i, chosen, pair_share),
-                        floor_seed_for_index(seed, split, i, floor_share))
+                        floor_seed_for_index(seed, split, i, floor_share), leftover_share)
              for i in range(count)]
     try:
         entries = _run_tasks(tasks, workers)
@@ -202,6 +209,7 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
                  "class_counts": {c: sum(e["class"] == c for e in entries) for c in chosen},
                  "pair_share": pair_share, "pairs": sum("partner" in e for e in entries),
                  "floor_share": floor_share, "floors": sum("floor" in e for e in entries),
+                 "leftover_share": leftover_share if realistic else 0.0,
                  "objects": entries}
         (partial / INDEX_NAME).write_text(json.dumps(index, indent=1) + "\n")
         if final.exists():
