@@ -332,6 +332,46 @@ def test_in_distribution_score_from_stored_statistics():
     assert in_distribution_score(meta, np.zeros(4)) == 1.0  # mismatched length: ignored
 
 
+def test_in_distribution_score_takes_the_nearest_look():
+    """With `groups` (capture-like, clean) the distance is the smallest to the pooled statistics or a group:
+    an object at one group's middle is in distribution even when it is far from the pooled statistics, one
+    far from all of them is not."""
+    from pixie_gs.model.predict import in_distribution_score
+
+    pooled = {"mean": [0.5, 0.5], "std": [0.05, 0.05]}
+    groups = [{"name": "capture-like", "mean": [0.0, 0.0], "std": [0.1, 0.1]},
+              {"name": "clean", "mean": [1.0, 1.0], "std": [0.1, 0.1]}]
+    at_clean = np.array([1.0, 1.0])
+    assert in_distribution_score({"feature_stats": pooled}, at_clean) < 1e-3  # z = 10 from the pooled middle
+    assert in_distribution_score({"feature_stats": {**pooled, "groups": groups}}, at_clean) == 1.0
+    assert in_distribution_score({"feature_stats": {**pooled, "groups": groups}}, np.array([0.5, 3.0])) < 1e-3
+    broken = [{"name": "clean", "mean": [1.0], "std": [0.1]}]  # wrong length: ignored, pooled used
+    assert in_distribution_score({"feature_stats": {**pooled, "groups": broken}}, at_clean) < 1e-3
+    assert in_distribution_score({"feature_stats": {**pooled, "groups": groups}}, np.array([0.5, 0.5])) == 1.0
+
+
+def test_stats_by_look_keeps_the_weights_and_the_pooled_statistics(tmp_path):
+    """`python -m pixie_gs.model.stats CKPT --by-look`: groups of the capture-like and the clean objects
+    are added; the checkpoint's own pooled statistics and every weight stay as they were."""
+    from pixie_gs.model.stats import main as stats_main
+
+    ckpt = tmp_path / "m.pt"
+    ckpt.write_bytes(DEFAULT_CHECKPOINT.read_bytes())
+    before = torch.load(ckpt, weights_only=True)
+    stats_main([str(ckpt), "--count", "12", "--classes", "sport_balls,soda_cans", "--gaussians", "1500,3000",
+                "--realistic-share", "0.5", "--by-look"])  # objects 0-9 capture-like, 10-11 clean
+    after = torch.load(ckpt, weights_only=True)
+    old, new = before["meta"]["feature_stats"], after["meta"]["feature_stats"]
+    assert {k: new[k] for k in ("mean", "std", "objects")} == {k: old[k] for k in ("mean", "std", "objects")}
+    assert [(g["name"], g["objects"]) for g in new["groups"]] == [("capture-like", 10), ("clean", 2)]
+    assert new["groups"][1]["mean"][new["channels"].index("sh_energy")] == 0.0  # clean: no view-dependent colour
+    assert new["groups_source"]["gaussians"] == [1500, 3000]
+    assert all(torch.equal(before["state_dict"][k], after["state_dict"][k]) for k in before["state_dict"])
+    with pytest.raises(SystemExit):  # all clean: no capture-like group to describe
+        stats_main([str(ckpt), "--count", "2", "--classes", "sport_balls", "--by-look"])
+    assert torch.load(ckpt, weights_only=True)["meta"] == after["meta"]
+
+
 def test_annotate_writes_confidence_and_warns_when_unlike_training(monkeypatch, capsys):
     """Per-Gaussian `confidence` in [0, 1]; with training statistics far from this object the
     in-distribution factor drops to ~0 and annotate says the materials are a guess."""

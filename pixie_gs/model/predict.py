@@ -117,22 +117,37 @@ def untrained_channels(meta: dict) -> list[str]:
 def in_distribution_score(meta: dict, summary: np.ndarray) -> float:
     """1 when an object's `object_feature_summary` lies within OOD_FREE_Z (RMS z-score) of the training
     objects' statistics stored in the checkpoint (meta["feature_stats"]), decaying beyond; 1 for a
-    checkpoint without statistics."""
+    checkpoint without statistics. With `groups` there (one per look of training object: capture-like,
+    clean; model/stats.py `--by-look`) the distance is the smallest to the pooled statistics or any group:
+    a clean converted mesh sits far from the pooled middle of mostly capture-like objects, but near the
+    clean group."""
     stats = meta.get("feature_stats") if isinstance(meta, dict) else None
-    try:
-        mu = np.asarray(stats["mean"], np.float64)
-        sd = np.maximum(np.asarray(stats["std"], np.float64), 1e-3)
-    except (TypeError, KeyError, ValueError):
+    if not isinstance(stats, dict):
         return 1.0
     f = np.asarray(summary, np.float64).reshape(-1)
-    if mu.shape != f.shape or sd.shape != f.shape:
-        return 1.0
     untrained = set(untrained_channels(meta))
     keep = np.array([n not in untrained for n in stats.get("channels", [])] or [True] * len(f))
     if keep.shape != f.shape:
         keep = np.ones(len(f), bool)
-    d = float(np.sqrt(np.mean(((f - mu) / sd)[keep] ** 2)))
+    groups = stats.get("groups") if isinstance(stats.get("groups"), list) else []
+    described = [stats] + [g for g in groups if isinstance(g, dict)]
+    distances = [d for d in (_rms_z(g, f, keep) for g in described) if d is not None]
+    if not distances:
+        return 1.0
+    d = min(distances)
     return float(np.exp(-0.5 * (max(0.0, d - OOD_FREE_Z) / OOD_WIDTH) ** 2))
+
+
+def _rms_z(stats: dict, f: np.ndarray, keep: np.ndarray) -> float | None:
+    """RMS z-score of summary `f` over the `keep` channels against one set of statistics (None if unusable)."""
+    try:
+        mu = np.asarray(stats["mean"], np.float64)
+        sd = np.maximum(np.asarray(stats["std"], np.float64), 1e-3)
+    except (TypeError, KeyError, ValueError):
+        return None
+    if mu.shape != f.shape or sd.shape != f.shape:
+        return None
+    return float(np.sqrt(np.mean(((f - mu) / sd)[keep] ** 2)))
 
 
 def voxel_confidence(logits, occupied):
