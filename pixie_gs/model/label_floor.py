@@ -34,6 +34,33 @@ def part_floor(part) -> np.ndarray:
     ])
 
 
+def record_floor_sums(record: dict, table: dict) -> tuple[np.ndarray, int] | None:
+    """(Σ over the object's Gaussians of their part's floor (3,), Gaussian count) for one label record;
+    its floor there is the first entry over the second. A pair (dataset/pairs.py) adds its partner's parts,
+    a floor (dataset/floor.py) its Gaussians with constant labels (no spread). None when the record names a
+    class or part `table` lacks or holds a value outside its range (made with another table)."""
+    sums, count = np.zeros(3), 0
+    partner = record.get("partner")
+    for rec in [record] + ([partner] if isinstance(partner, dict) else []):
+        spec = table.get(rec.get("class"))
+        if spec is None:
+            return None
+        for part in rec.get("parts", []):
+            try:
+                spec_part = spec.part(part["name"])
+            except KeyError:
+                return None
+            if not _drawn_from(spec_part, part):
+                return None
+            n = int(part.get("count", 0))
+            sums += part_floor(spec_part) * n
+            count += n
+    floor = record.get("floor")
+    if isinstance(floor, dict):
+        count += int(floor.get("count", 0))
+    return sums, count
+
+
 def split_floor(data_dir: str | Path, split: str = "test", limit: int | None = None,
                 table: dict | None = None) -> dict | None:
     """The label floor of a generated split, weighted per Gaussian like `pixie evaluate`'s table:
@@ -52,28 +79,13 @@ def split_floor(data_dir: str | Path, split: str = "test", limit: int | None = N
     by_class: dict[str, list] = {}  # category -> [sum of count × floor (3,), Gaussian count]
     for path in list_objects(data_dir, split)[: limit or None]:
         record = read_json_file(Path(path).with_suffix(".json"), "a label record")
-        # a pair (dataset/pairs.py) adds its partner's parts, a floor (dataset/floor.py) its Gaussians with
-        # constant labels (no spread), all counted under the first object's category as `pixie evaluate`
-        # counts them
-        sums = by_class.setdefault(record.get("class"), [np.zeros(3), 0])
-        partner = record.get("partner")
-        for rec in [record] + ([partner] if isinstance(partner, dict) else []):
-            spec = table.get(rec.get("class"))
-            if spec is None:
-                return None
-            for part in rec.get("parts", []):
-                try:
-                    spec_part = spec.part(part["name"])
-                except KeyError:
-                    return None
-                if not _drawn_from(spec_part, part):
-                    return None
-                n = int(part.get("count", 0))
-                sums[0] += part_floor(spec_part) * n
-                sums[1] += n
-        floor = record.get("floor")
-        if isinstance(floor, dict):
-            sums[1] += int(floor.get("count", 0))
+        sums = record_floor_sums(record, table)
+        if sums is None:
+            return None
+        # everything counted under the first object's category, as `pixie evaluate` counts it
+        total = by_class.setdefault(record.get("class"), [np.zeros(3), 0])
+        total[0] += sums[0]
+        total[1] += sums[1]
     count = sum(n for _, n in by_class.values())
     if count == 0:
         return None

@@ -1,0 +1,121 @@
+"""Benchmark (issue 12): where a checkpoint's held-out MSE above the label floor lies, object by object.
+
+Issue 12 asks for an average normalised MSE ≤ 0.03 on held-out generated objects. Part of any model's MSE
+is the label floor (model/label_floor.py: labels are drawn within each part's range, independently of
+what the splat shows); what is above it is what a model can still learn. This script splits that excess
+over the objects of a split: per object, the per-Gaussian MSE (as `pixie evaluate` computes it: nearest
+occupied voxel) minus the object's own floor, weighted by its Gaussians. It prints each checkpoint's MSE,
+the floor (the baseline every checkpoint is compared with, from the labels alone), the excess and its
+ratio to the floor, how much of the excess the worst 10 and 20 objects carry, and those objects with
+their category, accuracy and excess per label (log E, ν, log ρ). A handful of whole-object category
+confusions (a book read as a cushion) look different here from an excess spread over every object.
+
+    python benchmarks/bench_mse_excess.py DATA_DIR                       # the shipped checkpoint
+    python benchmarks/bench_mse_excess.py DATA_DIR --checkpoint a.pt --checkpoint b.pt --json excess.json
+
+DATA_DIR holds a split made by `pixie generate` (e.g. `pixie generate ho --count 130 --split test
+--seed 1000 --gaussians 20000`); ~45 s per checkpoint for 130 objects of 20k Gaussians on 2 CPU cores.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pixie_gs.dataset.labels import load_class_table
+from pixie_gs.errors import read_json_file
+from pixie_gs.model.batch import build_batch
+from pixie_gs.model.checkpoint import load_checkpoint
+from pixie_gs.model.data import DeviceStore, load_split, split_paths
+from pixie_gs.model.label_floor import record_floor_sums
+from pixie_gs.model.predict import grid_channel_names, run_model
+from pixie_gs.progress import progress
+from pixie_gs.transfer import nearest_voxel_values
+
+LABELS = ("log E", "nu", "log rho")
+
+
+def per_object(checkpoint: str | None, data_dir: str, split: str) -> list[dict]:
+    """One row per object: file, category, Gaussians, accuracy, squared error sums (3,), floor sums (3,)."""
+    loaded = load_checkpoint(checkpoint, "cpu")
+    records, _ = load_split(data_dir, split, list(loaded.features.extra_names))
+    paths = split_paths(data_dir, split)
+    store = DeviceStore(records, "cpu")
+    names = grid_channel_names(loaded.features.extra_names)
+    table = load_class_table()
+    rows = []
+    for i in progress(range(len(store)), f"objects ({Path(loaded.path).name})", total=len(store), unit="obj"):
+        batch = build_batch(store, [i], loaded.features)
+        classes, physical = run_model(loaded, batch.inputs, names, batch.occupied)
+        obj = store.object(i)
+        mat, phys = nearest_voxel_values(batch.means_unit[0].cpu().numpy(), classes[0].cpu().numpy(),
+                                         physical[0].cpu().numpy(), batch.occupied[0].cpu().numpy())
+        record = read_json_file(Path(paths[i]).with_suffix(".json"), "a label record")
+        floor = record_floor_sums(record, table)
+        if floor is None:
+            raise SystemExit(f"{paths[i]}: its labels were not drawn from the installed class table; no floor")
+        target = obj["physical"].cpu().numpy()
+        rows.append({"file": Path(paths[i]).name, "category": record.get("class"), "gaussians": len(mat),
+                     "accuracy": float((mat == obj["material_id"].cpu().numpy()).mean()),
+                     "se_sum": ((phys - target) ** 2).sum(0).tolist(),
+                     "floor_sum": (floor[0] * len(mat) / max(floor[1], 1)).tolist()})
+    return rows
+
+
+def summarise(rows: list[dict], top: int) -> dict:
+    """Split MSE, floor, excess, the share of the excess the worst objects carry, and those objects."""
+    n = sum(r["gaussians"] for r in rows)
+    se = np.sum([r["se_sum"] for r in rows], 0) / n
+    floor = np.sum([r["floor_sum"] for r in rows], 0) / n
+    excess = np.array([(np.array(r["se_sum"]) - np.array(r["floor_sum"])).mean() for r in rows]) / n
+    order = np.argsort(-excess)
+    total = excess.sum()
+    carried = {k: float(excess[order[:k]].sum() / total) if total > 0 else 0.0 for k in (10, 20)}
+    worst = [{"file": rows[i]["file"], "category": rows[i]["category"], "accuracy": rows[i]["accuracy"],
+              "excess_per_label": ((np.array(rows[i]["se_sum"]) - np.array(rows[i]["floor_sum"]))
+                                   / rows[i]["gaussians"]).round(4).tolist(),
+              "share_of_excess": float(excess[i] / total) if total > 0 else 0.0} for i in order[:top]]
+    accuracy = sum(r["accuracy"] * r["gaussians"] for r in rows) / n
+    return {"objects": len(rows), "gaussians": n, "accuracy": accuracy, "mse": se.tolist(),
+            "mse_avg": float(se.mean()), "floor": floor.tolist(), "floor_avg": float(floor.mean()),
+            "excess_avg": float(se.mean() - floor.mean()), "carried_by_worst": carried, "worst": worst}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("data_dir", help="dataset folder made by `pixie generate` (the split inside it)")
+    ap.add_argument("--split", default="test")
+    ap.add_argument("--checkpoint", action="append", default=None, help="checkpoint (repeatable; default shipped)")
+    ap.add_argument("--top", type=int, default=10, help="worst objects to list (default 10)")
+    ap.add_argument("--json", default=None, help="also write every figure as JSON")
+    args = ap.parse_args()
+    results = []
+    for ckpt in args.checkpoint or [None]:
+        t0 = time.perf_counter()
+        summary = summarise(per_object(ckpt, args.data_dir, args.split), args.top)
+        summary["checkpoint"] = ckpt or "shipped"
+        summary["seconds"] = round(time.perf_counter() - t0, 1)
+        results.append(summary)
+    floor = results[0]["floor_avg"]
+    print(f"label floor (the baseline; labels alone, no model): avg {floor:.4f}  "
+          f"({', '.join(f'{k} {v:.4f}' for k, v in zip(LABELS, results[0]['floor']))})")
+    for r in results:
+        print(f"\n{r['checkpoint']}: {r['objects']} objects, accuracy {r['accuracy']:.4f}, avg MSE {r['mse_avg']:.4f} "
+              f"({', '.join(f'{k} {v:.4f}' for k, v in zip(LABELS, r['mse']))}); above the floor "
+              f"{r['excess_avg']:.4f} = {r['excess_avg'] / floor:.2f}× the floor; the worst 10 objects carry "
+              f"{r['carried_by_worst'][10]:.0%} of it, the worst 20 {r['carried_by_worst'][20]:.0%}"
+              + (" (over 100 %: the others sit below their floors on the whole, by the luck of the draw)"
+                 if max(r["carried_by_worst"].values()) > 1 else "") + f" ({r['seconds']} s)")
+        for w in r["worst"]:
+            per = ", ".join(f"{k} {v:+.3f}" for k, v in zip(LABELS, w["excess_per_label"]))
+            print(f"  {w['file']:<34} {w['category']:<18} acc {w['accuracy']:.3f}  excess {per}  "
+                  f"({w['share_of_excess']:.0%} of the split's)")
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
