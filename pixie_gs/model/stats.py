@@ -12,7 +12,7 @@ handle (capture-like objects and clean converted meshes, `--realistic-share`):
 apart (meta["feature_stats"]["groups"]): one mean and spread over a mix of two looks puts a clean converted
 mesh (constant opacity, dense surface) far from the middle of both, and the out-of-distribution score then
 called correct answers on converted meshes a guess; with groups an object is in distribution when it is
-close to either look (model/predict.py `in_distribution_score`).
+close to the pooled statistics or to either look (model/predict.py `in_distribution_score`).
 """
 from __future__ import annotations
 
@@ -51,11 +51,6 @@ def summary_stats(loaded, f) -> dict:
     return {"channels": grid_channel_names(loaded.features.extra_names) + ["log10_occupied_share"],
             "objects": int(len(f)), "mean": [round(float(v), 6) for v in f.mean(0)],
             "std": [round(float(v), 6) for v in f.std(0)]}
-
-
-def feature_stats(loaded, clouds) -> dict:
-    """Mean and std over `clouds` of `object_feature_summary` on the checkpoint's own feature grid."""
-    return summary_stats(loaded, object_summaries(loaded, clouds))
 
 
 def add_stats(checkpoint: str | Path, classes: list[str], count: int, n_gaussians: int | list[int], seed: int = 31,
@@ -120,7 +115,10 @@ def main(argv: list[str] | None = None) -> None:
         classes = list(load_class_table())
     else:
         classes = args.classes.split(",")
-    counts = [int(c) for c in args.gaussians.split(",")]
+    try:
+        counts = [int(c) for c in args.gaussians.split(",")]
+    except ValueError:
+        ap.error(f"--gaussians takes whole numbers separated by commas (got {args.gaussians!r})")
     try:
         stats = add_stats(args.checkpoint, classes, args.count, counts, realistic_share=args.realistic_share,
                           by_look=args.by_look)
