@@ -3,9 +3,9 @@
 Issue 12 asks for an average normalised MSE ≤ 0.03 on held-out generated objects. Part of any model's MSE
 is the label floor (model/label_floor.py: labels are drawn within each part's range, independently of
 what the splat shows); what is above it is what a model can still learn. This script splits that excess
-over the objects of a split: per object, the per-Gaussian MSE (as `pixie evaluate` computes it: nearest
-occupied voxel) minus the object's own floor, weighted by its Gaussians. It prints each checkpoint's MSE,
-the floor (the baseline every checkpoint is compared with, from the labels alone), the excess and its
+over the objects of a split: per object, the per-Gaussian MSE (from `pixie evaluate`'s own batches and
+nearest-voxel transfer, model/evaluate.py) minus the object's own floor, weighted by its Gaussians. It
+prints each checkpoint's MSE, the floor (the baseline every checkpoint is compared with, from the labels alone), the excess and its
 ratio to the floor, how much of the excess the worst 10 and 20 objects carry, and those objects with
 their category, accuracy and excess per label (log E, ν, log ρ). A handful of whole-object category
 confusions (a book read as a cushion) look different here from an excess spread over every object.
@@ -27,13 +27,10 @@ import numpy as np
 
 from pixie_gs.dataset.labels import load_class_table
 from pixie_gs.errors import read_json_file
-from pixie_gs.model.batch import build_batch
 from pixie_gs.model.checkpoint import load_checkpoint
 from pixie_gs.model.data import DeviceStore, load_split, split_paths
+from pixie_gs.model.evaluate import evaluation_batches, gaussian_values
 from pixie_gs.model.label_floor import record_floor_sums
-from pixie_gs.model.predict import grid_channel_names, run_model
-from pixie_gs.progress import progress
-from pixie_gs.transfer import nearest_voxel_values
 
 LABELS = ("log E", "nu", "log rho")
 
@@ -44,24 +41,22 @@ def per_object(checkpoint: str | None, data_dir: str, split: str) -> list[dict]:
     records, _ = load_split(data_dir, split, list(loaded.features.extra_names))
     paths = split_paths(data_dir, split)
     store = DeviceStore(records, "cpu")
-    names = grid_channel_names(loaded.features.extra_names)
     table = load_class_table()
     rows = []
-    for i in progress(range(len(store)), f"objects ({Path(loaded.path).name})", total=len(store), unit="obj"):
-        batch = build_batch(store, [i], loaded.features)
-        classes, physical = run_model(loaded, batch.inputs, names, batch.occupied)
-        obj = store.object(i)
-        mat, phys = nearest_voxel_values(batch.means_unit[0].cpu().numpy(), classes[0].cpu().numpy(),
-                                         physical[0].cpu().numpy(), batch.occupied[0].cpu().numpy())
-        record = read_json_file(Path(paths[i]).with_suffix(".json"), "a label record")
-        floor = record_floor_sums(record, table)
-        if floor is None:
-            raise SystemExit(f"{paths[i]}: its labels were not drawn from the installed class table; no floor")
-        target = obj["physical"].cpu().numpy()
-        rows.append({"file": Path(paths[i]).name, "category": record.get("class"), "gaussians": len(mat),
-                     "accuracy": float((mat == obj["material_id"].cpu().numpy()).mean()),
-                     "se_sum": ((phys - target) ** 2).sum(0).tolist(),
-                     "floor_sum": (floor[0] * len(mat) / max(floor[1], 1)).tolist()})
+    desc = f"objects ({Path(loaded.path).name})"
+    for chunk, batch, classes, physical in evaluation_batches(loaded, store, desc=desc):
+        for b, i in enumerate(chunk):
+            obj = store.object(i)
+            mat, phys = gaussian_values(batch, b, classes, physical)
+            record = read_json_file(Path(paths[i]).with_suffix(".json"), "a label record")
+            floor = record_floor_sums(record, table)
+            if floor is None:
+                raise SystemExit(f"{paths[i]}: its labels were not drawn from the installed class table; no floor")
+            target = obj["physical"].cpu().numpy()
+            rows.append({"file": Path(paths[i]).name, "category": record.get("class"), "gaussians": len(mat),
+                         "accuracy": float((mat == obj["material_id"].cpu().numpy()).mean()),
+                         "se_sum": ((phys - target) ** 2).sum(0).tolist(),
+                         "floor_sum": (floor[0] * len(mat) / max(floor[1], 1)).tolist()})
     return rows
 
 

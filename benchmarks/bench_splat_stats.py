@@ -1,10 +1,11 @@
 """Per-Gaussian statistics of real captures vs generated training objects (issue 12).
 
 For each splat: opacity α, log std-dev relative to the object's size (log10 of mean σ / robust
-extent, and of the largest σ: large Gaussians fill a grid as a solid would), anisotropy log10(σ_max/σ_min), ‖f_rest‖ per SH degree, colour noise (|RGB − mean RGB of the
-8 nearest neighbours|), nearest-neighbour spacing relative to the extent, and the floater share
-(Gaussians whose 8th-neighbour distance is over 5× the median). Real captures pooled vs generated
-objects pooled: quantiles (5/25/50/75/95 %) and the two-sample Kolmogorov–Smirnov distance D.
+extent, and of the largest σ: large Gaussians fill a grid as a solid would), anisotropy
+log10(σ_max/σ_min), ‖f_rest‖ per SH degree, colour noise (|RGB − mean RGB of the 8 nearest neighbours|),
+nearest-neighbour spacing relative to the extent, and the floater share (Gaussians whose 8th-neighbour
+distance is over 5× the median). Real captures pooled vs generated objects pooled: quantiles
+(5/25/50/75/95 %) and the two-sample Kolmogorov–Smirnov distance D.
 
 usage: python benchmarks/bench_splat_stats.py [--real DIR] [--generated DIR] [--count N] [--out docs/real_vs_generated.md]
 --generated: a `pixie generate` split folder (…/train); without it, N objects are generated now

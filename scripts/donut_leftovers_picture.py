@@ -61,10 +61,10 @@ def main() -> None:
     slab = np.abs(p[:, 1] - np.median(p[:, 1])) < 0.01
     for k, (label, ckpt) in enumerate((("old", args.old), ("new", args.new))):
         out = annotate_cloud(real.copy(), checkpoint=ckpt, device="cpu")
-        logE = np.log10(out.get("E"))
-        sc = ax[1, k].scatter(p[slab, 0], p[slab, 2], c=logE[slab], s=2, vmin=4, vmax=9, cmap="plasma")
+        E = out.get("E")
+        sc = ax[1, k].scatter(p[slab, 0], p[slab, 2], c=np.log10(E[slab]), s=2, vmin=4, vmax=9, cmap="plasma")
         dough = p[:, 2] < 0.03
-        ax[1, k].set_title(f"{label}: {Path(ckpt).name}\nE median dough {np.median(10 ** logE[dough]):.1e} Pa")
+        ax[1, k].set_title(f"{label}: {Path(ckpt).name}\nE median dough {np.median(E[dough]):.1e} Pa")
         ax[1, k].set_aspect("equal"); ax[1, k].set_xlabel("x (m)"); ax[1, k].set_ylabel("z (m)")
     fig.colorbar(sc, ax=ax[1, :2], label="log10 E (Pa); bread 4–5.5")
     ax[1, 2].axis("off")
