@@ -73,3 +73,14 @@ def test_soup_refuses_other_networks_and_single_inputs(tmp_path, capsys):
 
 def test_union_ranges():
     assert union_ranges([{"E": [1, 3], "nu": [0.2, 0.3]}, {"E": [0.5, 2]}]) == {"E": [0.5, 3]}
+
+
+def test_soup_reads_configs_with_their_defaults(tmp_path):
+    """A checkpoint written before a config key existed (here context_width) soups with one that stores it."""
+    _checkpoint(tmp_path / "a.pt", 1)
+    _checkpoint(tmp_path / "b.pt", 2)
+    old = torch.load(tmp_path / "a.pt", weights_only=True)
+    del old["config"]["context_width"]
+    torch.save(old, tmp_path / "old.pt")
+    make_soup([tmp_path / "old.pt", tmp_path / "b.pt"], tmp_path / "soup.pt")
+    assert load_checkpoint(tmp_path / "soup.pt").config.context_width == 0

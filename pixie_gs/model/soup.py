@@ -22,7 +22,7 @@ from ..atomic import atomic_path
 from ..errors import InputError
 from .checkpoint import read_payload, validate_payload
 
-MATCHING_KEYS = ("format", "format_version", "config", "features", "normalization")
+MATCHING_KEYS = ("format", "format_version", "features", "normalization")  # and the config, as ModelConfig reads it
 
 
 def _sha256(path: Path) -> str:
@@ -42,13 +42,15 @@ def make_soup(inputs: list[str | Path], out: str | Path, stats_from: int = -1) -
     if len(inputs) < 2:
         raise InputError("a soup needs at least two checkpoints")
     paths = [Path(p) for p in inputs]
-    payloads = []
+    payloads, configs = [], []
     for p in paths:  # each one a valid checkpoint (schema, sizes, finite weights) before any averaging
         payload = read_payload(p)
-        validate_payload(payload, p)
+        configs.append(validate_payload(payload, p)[0].to_dict())  # with defaults for keys older files lack
         payloads.append(payload)
     first = payloads[0]
-    for p, payload in zip(paths[1:], payloads[1:]):
+    for p, payload, config in zip(paths[1:], payloads[1:], configs[1:]):
+        if config != configs[0]:
+            raise InputError(f"'config' differs from {paths[0].name}'s: not the same network", p)
         for key in MATCHING_KEYS:
             if payload.get(key) != first.get(key):
                 raise InputError(f"'{key}' differs from {paths[0].name}'s: not the same network", p)
@@ -75,7 +77,7 @@ def make_soup(inputs: list[str | Path], out: str | Path, stats_from: int = -1) -
         meta["label_ranges"] = union_ranges(ranges)
     if "feature_stats" in metas[stats_from]:
         meta["feature_stats"] = metas[stats_from]["feature_stats"]
-    payload = {**{k: first[k] for k in MATCHING_KEYS if k in first}, "state_dict": state, "meta": meta}
+    payload = {**{k: first[k] for k in MATCHING_KEYS if k in first}, "config": configs[0], "state_dict": state, "meta": meta}
     with atomic_path(out, suffix=".pt.tmp") as tmp:
         torch.save(payload, tmp)
     return meta
