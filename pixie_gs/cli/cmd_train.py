@@ -52,10 +52,6 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--anchor-weight", type=float, default=0.0, metavar="W",
                    help="with --init: add W · Σ (θ − θ_init)² to the loss (L2-SP), keeping a fine-tune near its start "
                    "weights; every epoch logs that sum as drift_sq (default 0: no penalty)")
-    p.add_argument("--part-weight", type=float, default=0.0, metavar="W",
-                   help="add W × the cross-entropy of a training-only head that names each voxel's category and part "
-                   "(from the class table; a noise-free signal of what the object is, where E, ν, ρ labels are drawn "
-                   "at random inside each part's range). Inference does not use it (default 0: no head)")
     p.add_argument("--keep-epochs", action="store_true",
                    help="also write every epoch's weights as CKPT_STEM.epochNN.pt (to score each on real captures, "
                    "e.g. benchmarks/bench_real_set.py, before picking one)")
@@ -102,8 +98,6 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--tilt-deg must be within 0–90 and --tilt-share within 0–1")
     if not (math.isfinite(args.anchor_weight) and args.anchor_weight >= 0.0):
         raise InputError(f"--anchor-weight must be a finite number ≥ 0 (got {args.anchor_weight})")
-    if not (math.isfinite(args.part_weight) and args.part_weight >= 0.0):
-        raise InputError(f"--part-weight must be a finite number ≥ 0 (got {args.part_weight})")
     if args.anchor_weight > 0 and not args.init:
         raise InputError("--anchor-weight needs --init (the weights to stay near)")
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, time_budget_s=args.time_budget_s,
@@ -111,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
                       tilt_max_deg=args.tilt_deg, tilt_share=args.tilt_share,
                       limit_train=args.limit_train, limit_val=args.limit_val, input_mode=args.inputs,
                       init_from=args.init, objects_per_build=args.build_objects, keep_epochs=args.keep_epochs,
-                      anchor_weight=args.anchor_weight, part_weight=args.part_weight,
+                      anchor_weight=args.anchor_weight,
                       model={"base_channels": args.base_channels, "multipliers": mults, "res_blocks": args.res_blocks,
                              "context_width": args.context_width},
                       features={"resolution": args.resolution})

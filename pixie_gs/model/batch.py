@@ -33,15 +33,13 @@ class AugmentConfig:
 @dataclass
 class Batch:
     """inputs (B,C,N,N,N) full grid channels, occupied (B,N,N,N), target_class (B,N,N,N) long,
-    target_physical (B,3,N,N,N), each object's unit-cube Gaussian centres (list of (M_b,3)), and, when
-    asked for, target_part (B,N,N,N) long: the (category, part) label index, part_labels.IGNORE where none."""
+    target_physical (B,3,N,N,N), and each object's unit-cube Gaussian centres (list of (M_b,3))."""
 
     inputs: object
     occupied: object
     target_class: object
     target_physical: object
     means_unit: list
-    target_part: object = None
 
 
 def augmentation_matrix(gen, cfg: AugmentConfig, device):
@@ -78,13 +76,10 @@ def object_generator(epoch_seed: int, index: int):
 
 
 def build_batch(store, ids: list[int], spec: FeatureSpec, augment: AugmentConfig | None = None,
-                epoch_seed: int = 0, part_labels: list[str] | None = None) -> Batch:
+                epoch_seed: int = 0) -> Batch:
     """Grids and labels for objects `ids` of a DeviceStore (augmented when `augment` is given, each object
-    by its own draws: `object_generator(epoch_seed, id)`); with `part_labels` (the part head's names) also
-    each voxel's (category, part) label, the weighted vote of its Gaussians' parts like the class."""
+    by its own draws: `object_generator(epoch_seed, id)`)."""
     import torch
-
-    from .part_labels import IGNORE, MAX_PARTS, slot_table
 
     dev = store.device
     n = spec.resolution
@@ -103,8 +98,6 @@ def build_batch(store, ids: list[int], spec: FeatureSpec, augment: AugmentConfig
         mu, cv, al, ft, _, _ = prepare_gaussians(
             GaussianTensors(means, cov, o["alphas"], rgb, o["sh_energy"], o["extras"]), spec.margin)
         labels = torch.cat([torch.nn.functional.one_hot(o["material_id"], NUM_CLASSES).float(), o["physical"]], 1)
-        if part_labels is not None:
-            labels = torch.cat([labels, torch.nn.functional.one_hot(o["part_slot"], MAX_PARTS + 1).float()], 1)
         mus.append(mu)
         covs.append(cv)
         alphas.append(al)
@@ -114,20 +107,12 @@ def build_batch(store, ids: list[int], spec: FeatureSpec, augment: AugmentConfig
     feats_all = torch.cat(feats)
     dens, sums = splat_field(torch.cat(mus), torch.cat(covs), torch.cat(alphas), feats_all, n,
                              filter_voxels=spec.filter_voxels, batch_index=torch.cat(bidx), batch_size=len(ids))
-    n_slots = MAX_PARTS + 1 if part_labels is not None else 0
-    n_in = feats_all.shape[1] - NUM_CLASSES - 3 - n_slots
+    n_in = feats_all.shape[1] - NUM_CLASSES - 3
     inputs, occ = grid_channels(dens, sums[..., :n_in], n)
     votes = sums[..., n_in:n_in + NUM_CLASSES]
     target_class = torch.where(occ.view(len(ids), -1), votes.argmax(-1), torch.full_like(votes[..., 0], BACKGROUND).long())
-    phys = sums[..., n_in + NUM_CLASSES:n_in + NUM_CLASSES + 3] / dens.clamp_min(1e-8)[..., None]
+    phys = sums[..., n_in + NUM_CLASSES:] / dens.clamp_min(1e-8)[..., None]
     phys = torch.where(occ.view(len(ids), -1, 1), phys, torch.zeros_like(phys))
     b = len(ids)
-    target_part = None
-    if part_labels is not None:
-        tables = torch.tensor([slot_table(store.class_names[i], part_labels) for i in ids], dtype=torch.long, device=dev)
-        slot = sums[..., n_in + NUM_CLASSES + 3:].argmax(-1)  # (B, N³)
-        target_part = torch.gather(tables, 1, slot)
-        keep = occ.view(b, -1) & (target_class != BACKGROUND)
-        target_part = torch.where(keep, target_part, torch.full_like(target_part, IGNORE)).view(b, n, n, n)
     return Batch(inputs, occ, target_class.view(b, n, n, n),
-                 phys.view(b, n, n, n, 3).permute(0, 4, 1, 2, 3).contiguous(), means_unit, target_part)
+                 phys.view(b, n, n, n, 3).permute(0, 4, 1, 2, 3).contiguous(), means_unit)

@@ -108,7 +108,6 @@ CHANNELS_RANGE = (1, 1024)  # projector and U-Net widths
 MULTIPLIER_RANGE = (1, 64)
 MAX_LEVELS = 6
 MAX_RES_BLOCKS = 16
-MAX_PART_LABELS = 4096  # outputs of the training-only part head
 
 
 def validate_payload(payload: object, path: str | Path) -> tuple[ModelConfig, FeatureSpec]:
@@ -192,12 +191,7 @@ def _validate(payload: object, path: str | Path) -> tuple[ModelConfig, FeatureSp
     if features.resolution % (2 ** (len(mult) - 1)):
         raise bad(f"features.resolution {features.resolution} is not divisible by 2^{len(mult) - 1} "
                   f"({len(mult)} U-Net levels)")
-    part_labels = cfg.get("part_labels", [])
-    if (not isinstance(part_labels, list) or len(part_labels) > MAX_PART_LABELS
-            or not all(isinstance(n, str) and len(n) <= 200 for n in part_labels)):
-        raise bad(f"config.part_labels must be a list of at most {MAX_PART_LABELS} names, got {part_labels!r:.60}")
-    config = ModelConfig(input_channels=inputs, multipliers=list(mult), dropout=dropout, part_labels=part_labels,
-                         **ints)
+    config = ModelConfig(input_channels=inputs, multipliers=list(mult), dropout=dropout, **ints)
     # weights: every entry a tensor, floating ones finite, shapes those of the config (checked on the
     # meta device, so a hostile config allocates nothing)
     for key, value in weights.items():

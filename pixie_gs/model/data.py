@@ -16,7 +16,6 @@ from ..errors import InputError
 from ..field import extra_feature_names, per_gaussian_channels
 from ..materials import normalize_physical
 from ..progress import progress
-from .part_labels import part_slots
 from ..splat import SplatCloud
 
 
@@ -34,17 +33,15 @@ class ObjectRecord:
     extras: np.ndarray  # (M,E)
     material_id: np.ndarray  # (M,) int64
     physical: np.ndarray  # (M,3) normalised
-    part_slot: np.ndarray  # (M,) int64: part id, or part_labels.UNKNOWN_SLOT (the part head's target)
 
 
 def record_from_cloud(cloud: SplatCloud, extra_names: list[str], name: str = "", class_name: str = "") -> ObjectRecord:
     """Compact arrays of a labelled cloud (InputError when labels are missing)."""
     mid, E, nu, rho = cloud.get_materials()
     sh, extras = per_gaussian_channels(cloud, extra_names)
-    part_id = cloud.get("part_id") if cloud.has("part_id") else None
     return ObjectRecord(name, class_name, cloud.means.astype(np.float32), cloud.covariances().astype(np.float32),
                         cloud.opacities.astype(np.float32), cloud.rgb(), sh.astype(np.float32), extras,
-                        mid.astype(np.int64), normalize_physical(E, nu, rho), part_slots(part_id, len(mid)))
+                        mid.astype(np.int64), normalize_physical(E, nu, rho))
 
 
 def _load_one(args: tuple[str, list[str] | None]) -> tuple[ObjectRecord, list[str]]:
@@ -90,7 +87,7 @@ def load_split(data_dir: str | Path, split: str, extra_names: list[str] | None =
 class DeviceStore:
     """Every object's arrays concatenated into device tensors, sliced per object by offsets."""
 
-    FIELDS = ("means", "covariances", "alphas", "rgb", "sh_energy", "extras", "material_id", "physical", "part_slot")
+    FIELDS = ("means", "covariances", "alphas", "rgb", "sh_energy", "extras", "material_id", "physical")
 
     def __init__(self, records: list[ObjectRecord], device: str) -> None:
         import torch
@@ -103,7 +100,7 @@ class DeviceStore:
         self.tensors = {}
         for f in self.FIELDS:
             arr = np.concatenate([getattr(r, f) for r in records])
-            dtype = torch.long if f in ("material_id", "part_slot") else torch.float32
+            dtype = torch.long if f == "material_id" else torch.float32
             self.tensors[f] = torch.as_tensor(arr, dtype=dtype, device=device)
 
     def __len__(self) -> int:

@@ -127,11 +127,11 @@ def from_main(values: Sequence[float], ctx: DistContext, device: str) -> list[fl
     return t.tolist()
 
 
-PART_NAMES = ("ce", "mse_log_E", "mse_nu", "mse_log_rho", "ce_part")
+PART_NAMES = ("ce", "mse_log_E", "mse_nu", "mse_log_rho")
 
 
 def global_batch_loss(loss, parts: dict[str, float], occupied_voxels: int, counts: bool, class_weight: float,
-                      ctx: DistContext, device: str, part_weight: float = 0.0):
+                      ctx: DistContext, device: str):
     """(loss to back-propagate, its value over the whole global batch, parts over the whole batch).
 
     `loss` and `parts` are this rank's masked means over its `occupied_voxels`; the rank's loss is
@@ -141,6 +141,5 @@ def global_batch_loss(loss, parts: dict[str, float], occupied_voxels: int, count
     sums = sum_across([mine] + [mine * parts[k] for k in PART_NAMES], ctx, device)
     total = max(sums[0], 1.0)
     whole = {k: v / total for k, v in zip(PART_NAMES, sums[1:])}
-    value = (class_weight * whole["ce"] + whole["mse_log_E"] + whole["mse_nu"] + whole["mse_log_rho"]
-             + part_weight * whole["ce_part"])
+    value = class_weight * whole["ce"] + whole["mse_log_E"] + whole["mse_nu"] + whole["mse_log_rho"]
     return loss * (ctx.world_size * mine / total), value, whole

@@ -39,17 +39,15 @@ def default_objects_per_build(device: str, resolution: int, channels: int) -> in
 
 def slice_batch(batch: Batch, start: int, stop: int) -> Batch:
     """Objects start … stop − 1 of a built batch (views along the batch dimension)."""
-    part = batch.target_part[start:stop] if batch.target_part is not None else None
     return Batch(batch.inputs[start:stop], batch.occupied[start:stop], batch.target_class[start:stop],
-                 batch.target_physical[start:stop], batch.means_unit[start:stop], part)
+                 batch.target_physical[start:stop], batch.means_unit[start:stop])
 
 
 def step_batches(store, batches: list[list[int]], spec: FeatureSpec, augment: AugmentConfig | None, epoch_seed: int,
-                 ctx: DistContext = SINGLE, objects_per_build: int = 1, part_labels: list[str] | None = None
-                 ) -> Iterator[tuple[list[int], Batch, bool]]:
+                 ctx: DistContext = SINGLE, objects_per_build: int = 1) -> Iterator[tuple[list[int], Batch, bool]]:
     """For each global batch of `batches`: (its ids, this rank's share built as a Batch, whether the share
     counts — see `rank_share`). Consecutive steps are built together, about `objects_per_build` of this
-    rank's objects per call; `part_labels` asks for the part head's targets (build_batch)."""
+    rank's objects per call."""
     if not batches:
         return
     per_step = max(1, math.ceil(max(len(b) for b in batches) / ctx.world_size))
@@ -57,7 +55,7 @@ def step_batches(store, batches: list[list[int]], spec: FeatureSpec, augment: Au
     for g0 in range(0, len(batches), group):
         chunk = batches[g0:g0 + group]
         shares = [rank_share(ids, ctx) for ids in chunk]
-        built = build_batch(store, [i for share, _ in shares for i in share], spec, augment, epoch_seed, part_labels)
+        built = build_batch(store, [i for share, _ in shares for i in share], spec, augment, epoch_seed)
         start = 0
         for ids, (share, counts) in zip(chunk, shares):
             yield ids, slice_batch(built, start, start + len(share)), counts

@@ -24,7 +24,6 @@ from .batch import AugmentConfig, Batch, build_batch
 from .checkpoint import FeatureSpec, LoadedModel, load_training_state, save_checkpoint, state_path
 from .distributed import SINGLE, DistContext, barrier, from_main, global_batch_loss, sum_across
 from .evaluate import evaluate_store
-from .part_labels import part_label_names
 from .predict import grid_channel_names, object_feature_summary, select_inputs
 from .step_batches import default_objects_per_build, step_batches
 from .unet import MaterialUNet, ModelConfig, masked_loss
@@ -49,7 +48,6 @@ class TrainConfig:
     input_mode: str = "full"
     init_from: str | None = None  # start from this checkpoint's weights (same network config), fresh optimiser
     anchor_weight: float = 0.0  # L2-SP: loss += w · Σ (θ − θ_init)² over the weights (needs init_from)
-    part_weight: float = 0.0  # loss += w · CE of a part head naming each voxel's (category, part) (part_labels.py)
     keep_epochs: bool = False  # also write every epoch's weights (epoch_checkpoint_path) to pick among them later
     model: dict = field(default_factory=dict)  # ModelConfig overrides (base_channels, multipliers, …)
     objects_per_build: int | None = None  # grids built per call, several steps' worth (None: by device)
@@ -81,7 +79,6 @@ def val_score(summary: dict) -> float:
 
 
 FEATURE_STATS_OBJECTS = 2000  # training objects whose grid statistics are stored in the checkpoint
-PART_HEAD_LR_SCALE = 20.0  # the part head's learning rate over the network's (train())
 VAL_BATCH_CPU, VAL_BATCH_CUDA = 4, 16  # objects per validation pass (CUDA: fewer calls, each with a fixed cost)
 
 
@@ -106,41 +103,34 @@ def training_label_ranges(records) -> dict[str, list[float]]:
 
 def load_init_weights(net, init_model, init_config: ModelConfig, config: ModelConfig, path) -> bool:
     """Copy a checkpoint's weights into `net` (fine-tuning). The configs must match, except that `net` may
-    add an object-context branch the checkpoint lacks (it starts at zero: same outputs) and a part head
-    (training-only: it changes no output). Returns whether the network grew."""
-    grows_context = init_config.context_width == 0 < config.context_width
-    grows_parts = not init_config.part_labels and bool(config.part_labels)
+    add an object-context branch the checkpoint lacks (it starts at zero: same outputs). Returns whether
+    it did."""
+    grows = init_config.context_width == 0 < config.context_width
     same_width = init_config.context_width == config.context_width
-    same_parts = init_config.part_labels == config.part_labels
-    same_otherwise = {**init_config.to_dict(), "context_width": config.context_width,
-                      "part_labels": config.part_labels} == config.to_dict()
-    if not same_otherwise or not (same_width or grows_context) or not (same_parts or grows_parts):
+    same_otherwise = {**init_config.to_dict(), "context_width": config.context_width} == config.to_dict()
+    if not same_otherwise or not (same_width or grows):
         raise InputError("--init checkpoint has a different network configuration", path)
-    grows = grows_context or grows_parts
-    new = tuple(prefix for prefix, grown in (("context.", grows_context), ("part_head.", grows_parts)) if grown)
     result = net.load_state_dict(init_model.state_dict(), strict=not grows)
-    if grows and (result.unexpected_keys or any(not k.startswith(new) for k in result.missing_keys)):
+    if grows and (result.unexpected_keys or any(not k.startswith("context.") for k in result.missing_keys)):
         raise InputError("--init checkpoint's weights do not fit the network", path)
     return grows
 
 
 def batch_loss(model, batch: Batch, counts: bool, names: list[str], inputs: list[str], class_weight: float,
-               use_amp: bool, ctx: DistContext = SINGLE, part_weight: float = 0.0):
+               use_amp: bool, ctx: DistContext = SINGLE):
     """Run the model on this rank's share of a global batch (see step_batches.py): returns (loss to
-    back-propagate, the loss value of the whole global batch, its parts). With `part_weight` > 0 the
-    batch carries part targets and the part head's cross-entropy joins the loss."""
+    back-propagate, the loss value of the whole global batch, its parts)."""
     import torch
 
     x = select_inputs(batch.inputs, names, inputs)
     with torch.autocast("cuda", dtype=torch.bfloat16, enabled=use_amp):
-        outputs = model(x, with_parts=part_weight > 0)
-    part_logits = outputs[2] if part_weight > 0 else None
-    loss, parts = masked_loss(outputs[0], outputs[1], batch.target_class, batch.target_physical, batch.occupied,
-                              class_weight, part_logits, batch.target_part, part_weight)
+        logits, physical = model(x)
+    loss, parts = masked_loss(logits, physical, batch.target_class, batch.target_physical, batch.occupied,
+                              class_weight)
     if not ctx.enabled:
         return loss, float(loss.detach()), parts
     return global_batch_loss(loss, parts, int(batch.occupied.sum()), counts, class_weight, ctx,
-                             str(batch.occupied.device), part_weight)
+                             str(batch.occupied.device))
 
 
 def squared_distance(net, anchor: dict):
@@ -210,8 +200,7 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
     spec = FeatureSpec(**{**FeatureSpec().to_dict(), **cfg.features, "extra_names": tuple(extra)})
     names = grid_channel_names(extra)
     inputs = list(INPUT_MODES[cfg.input_mode] or names)
-    part_names = part_label_names() if cfg.part_weight > 0 else []
-    mcfg = ModelConfig(input_channels=inputs, **{"part_labels": part_names, **cfg.model})
+    mcfg = ModelConfig(input_channels=inputs, **cfg.model)
     net = MaterialUNet(mcfg).to(device)
     # the start weights (after any growth): each epoch logs the drift from them, --anchor-weight penalises
     # it; on --resume they are rebuilt from --init in a spare network, since the state holds only the
@@ -225,14 +214,9 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         grown = load_init_weights(start, init.model, init.config, mcfg, cfg.init_from)
         if not state:
             stage(f"starting from the weights of {cfg.init_from}"
-                  + ("; new parts (context branch, part head) start fresh, the outputs stay the same" if grown else ""))
+                  + ("; the new object-context branch starts at zero (the same outputs)" if grown else ""))
         anchor = {name: p.detach().clone().to(device) for name, p in start.named_parameters()}
-    # a part head starts untrained: at a fine-tune's small rate it would take tens of thousands of steps to say
-    # anything, while its gradient already moves the shared features; it learns PART_HEAD_LR_SCALE× faster
-    head = [p for name, p in net.named_parameters() if name.startswith("part_head.")]
-    body = [p for name, p in net.named_parameters() if not name.startswith("part_head.")]
-    groups = [{"params": body, "lr_scale": 1.0}] + ([{"params": head, "lr_scale": PART_HEAD_LR_SCALE}] if head else [])
-    opt = torch.optim.AdamW(groups, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     history: list[dict] = []
     start_epoch, step, elapsed_before, best = 0, 0, 0.0, -math.inf
     if state:
@@ -272,12 +256,11 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         model.train()
         order = torch.randperm(len(train_store), generator=gen).tolist()
         batches = [order[i:i + cfg.batch_size] for i in range(0, len(order), cfg.batch_size)]
-        sums = {"loss": 0.0, "ce": 0.0, "mse_log_E": 0.0, "mse_nu": 0.0, "mse_log_rho": 0.0, "ce_part": 0.0}
+        sums = {"loss": 0.0, "ce": 0.0, "mse_log_E": 0.0, "mse_nu": 0.0, "mse_log_rho": 0.0}
         done = objects = 0
         t_epoch = time.perf_counter()
         # augmentation: per object and epoch (batch.object_generator), so every rank draws what one process would
-        steps = step_batches(train_store, batches, spec, aug, cfg.seed * 7919 + epoch, dist, per_build,
-                             part_names or None)
+        steps = step_batches(train_store, batches, spec, aug, cfg.seed * 7919 + epoch, dist, per_build)
         for ids, batch, counts in progress(steps, f"epoch {epoch + 1}/{cfg.epochs}", total=len(batches),
                                            unit="batch"):
             elapsed = elapsed_before + time.perf_counter() - t_train
@@ -288,9 +271,8 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
                     out_of_time = True
                     break
             for g in opt.param_groups:
-                g["lr"] = learning_rate(cfg, step, total_steps, elapsed) * g.get("lr_scale", 1.0)
-            loss, value, parts = batch_loss(model, batch, counts, names, inputs, cfg.class_weight, use_amp, dist,
-                                            cfg.part_weight)
+                g["lr"] = learning_rate(cfg, step, total_steps, elapsed)
+            loss, value, parts = batch_loss(model, batch, counts, names, inputs, cfg.class_weight, use_amp, dist)
             if cfg.anchor_weight > 0:  # every rank adds the same term: DDP's gradient mean keeps it as is
                 loss = loss + cfg.anchor_weight * squared_distance(net, anchor)
             if summarised < FEATURE_STATS_OBJECTS:

@@ -9,7 +9,6 @@ spatial context), and width/depth are configurable so the shipped network fits C
 Optional (`context_width` > 0): an object-context branch at the bottleneck (`ObjectContext`).
 Outputs: 8 class logits (ids 0–6 and 7 = background) and 3 normalised values
 (log10 E, ν, log10 ρ mapped to [-1, 1] by `pixie_gs.materials.normalize_physical`).
-Optional (`part_labels` non-empty): a training-only head naming each voxel's (category, part).
 """
 from __future__ import annotations
 
@@ -36,9 +35,6 @@ class ModelConfig:
     context_width: int = 0  # hidden width of the object-context branch at the bottleneck (0: none)
     num_classes: int = NUM_CLASSES
     num_physical: int = 3
-    # "category/part" names of a training-only head that must name each voxel's part (model/part_labels.py);
-    # empty: no such head. Inference never reads it.
-    part_labels: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -129,10 +125,8 @@ class MaterialUNet(nn.Module):
         self.out_norm = nn.Sequential(nn.GroupNorm(_groups(prev), prev), nn.LeakyReLU(0.02))
         self.class_head = nn.Conv3d(prev, config.num_classes, 1)
         self.physical_head = nn.Conv3d(prev, config.num_physical, 1)
-        self.part_head = nn.Conv3d(prev, len(config.part_labels), 1) if config.part_labels else None
 
-    def forward(self, x: torch.Tensor, with_parts: bool = False):
-        """(class logits, physical), and the part head's logits (B, P, N, N, N) too when `with_parts`."""
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         h = self.stem(self.projector(x))
         skips = []
         for level, blocks in enumerate(self.down_blocks):
@@ -147,22 +141,16 @@ class MaterialUNet(nn.Module):
             h = nn.functional.interpolate(up(h), scale_factor=2, mode="nearest")
             h = blocks(h + skips.pop())  # additive skip: same information, half the convolution cost
         h = self.out_norm(h)
-        if with_parts:
-            if self.part_head is None:
-                raise ValueError("this network has no part head (ModelConfig.part_labels is empty)")
-            return self.class_head(h), self.physical_head(h), self.part_head(h)
         return self.class_head(h), self.physical_head(h)
 
 
 def masked_loss(logits: torch.Tensor, physical: torch.Tensor, target_class: torch.Tensor,
-                target_physical: torch.Tensor, occupied: torch.Tensor, class_weight: float = 1.0,
-                part_logits: torch.Tensor | None = None, target_part: torch.Tensor | None = None,
-                part_weight: float = 0.0) -> tuple[torch.Tensor, dict[str, float]]:
-    """λ·CE + MSE(log E) + MSE(ν) + MSE(log ρ) (+ μ·CE of the part head), averaged over occupied voxels.
+                target_physical: torch.Tensor, occupied: torch.Tensor, class_weight: float = 1.0
+                ) -> tuple[torch.Tensor, dict[str, float]]:
+    """λ·CE + MSE(log E) + MSE(ν) + MSE(log ρ), averaged over occupied voxels only.
 
     logits (B,8,N,N,N), physical (B,3,…), target_class (B,N,N,N) long, target_physical (B,3,…),
-    occupied (B,N,N,N) bool; part_logits (B,P,…) and target_part (B,N,N,N) long (−1: no part, left
-    out) with part_weight μ > 0. Returns (loss, parts as floats; ce_part 0 without the part term).
+    occupied (B,N,N,N) bool. Returns (loss, parts as floats).
     """
     occ = occupied.reshape(-1)
     count = occ.sum().clamp_min(1)
@@ -171,12 +159,5 @@ def masked_loss(logits: torch.Tensor, physical: torch.Tensor, target_class: torc
     diff = (physical.float() - target_physical.float()).permute(0, 2, 3, 4, 1).reshape(-1, 3)[occ]
     mse = (diff ** 2).sum(dim=0) / count
     loss = class_weight * ce + mse.sum()
-    ce_part = torch.zeros(())
-    if part_weight > 0 and part_logits is not None and target_part is not None:
-        plg = part_logits.permute(0, 2, 3, 4, 1).reshape(-1, part_logits.shape[1])[occ].float()
-        ce_part = nn.functional.cross_entropy(plg, target_part.reshape(-1)[occ], ignore_index=-1,
-                                              reduction="sum") / count
-        loss = loss + part_weight * ce_part
     parts = mse.detach().cpu().tolist()
-    return loss, {"ce": float(ce.detach()), "mse_log_E": parts[0], "mse_nu": parts[1], "mse_log_rho": parts[2],
-                  "ce_part": float(ce_part.detach())}
+    return loss, {"ce": float(ce.detach()), "mse_log_E": parts[0], "mse_nu": parts[1], "mse_log_rho": parts[2]}
