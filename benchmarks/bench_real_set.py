@@ -15,6 +15,7 @@ near tie (docs/model_card.md, "Candidates r51 and r52": the redplant's foliage).
     python benchmarks/bench_real_set.py --checkpoint cand.pt             # a candidate beside the shipped one
     python benchmarks/bench_real_set.py --checkpoint a.pt --checkpoint b.pt --json real.json
     python benchmarks/bench_real_set.py --crop-to-object-box                 # each asset cropped to its box
+    python benchmarks/bench_real_set.py --crop-to-object-box --box-scale 1.5 # … to its box grown 1.5×
 
 Needs ../shared/real (not part of a user's clone); `--real DIR` points elsewhere.
 """
@@ -28,6 +29,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = ROOT / "pixie_gs" / "data" / "checkpoints" / "pixie_default.pt"
@@ -69,12 +72,19 @@ def inputs(real: Path, work: Path) -> dict[str, Path]:
     return out
 
 
-def object_box_crops(real: Path) -> dict[str, list[str]]:
-    """Expectations file name → the `--crop box:x0,y0,z0,x1,y1,z1` arguments of its object box (file units)."""
+def object_box_crops(real: Path, scale: float = 1.0) -> dict[str, list[str]]:
+    """Expectations file name → the `--crop box:x0,y0,z0,x1,y1,z1` arguments of its object box (file units),
+    grown `scale`× about its centre (1: the box as written)."""
     entries = json.loads((real / "expectations.json").read_text())
     entries = entries["assets"] if isinstance(entries, dict) else entries
-    return {e["file"]: ["--crop", "box:" + ",".join(f"{v:g}" for corner in e["object_box"] for v in corner)]
-            for e in entries if "object_box" in e}
+    crops = {}
+    for e in entries:
+        if "object_box" not in e:
+            continue
+        lo, hi = (np.asarray(c, dtype=float) for c in e["object_box"])
+        centre, half = (lo + hi) / 2, scale * (hi - lo) / 2
+        crops[e["file"]] = ["--crop", "box:" + ",".join(f"{v:.6g}" for v in np.concatenate([centre - half, centre + half]))]
+    return crops
 
 
 def score(real: Path, files: dict[str, Path], checkpoint: Path, out_dir: Path,
@@ -116,6 +126,8 @@ def main() -> None:
     ap.add_argument("--json", default=None, help="also write every figure as JSON")
     ap.add_argument("--crop-to-object-box", action="store_true",
                     help="annotate each asset cropped to its expectations.json object box (default: no crop)")
+    ap.add_argument("--box-scale", type=float, default=1.0,
+                    help="with --crop-to-object-box: grow each box this many times about its centre (default 1)")
     args = ap.parse_args()
     real = Path(args.real)
     if not (real / "expectations.json").exists():
@@ -126,7 +138,7 @@ def main() -> None:
     results = []
     for k, ck in enumerate(checkpoints):
         label = "shipped" if k == 0 else f"candidate{k}"
-        r = score(real, files, ck, work / label, object_box_crops(real) if args.crop_to_object_box else None)
+        r = score(real, files, ck, work / label, object_box_crops(real, args.box_scale) if args.crop_to_object_box else None)
         r["label"] = label
         results.append(r)
         print(f"{label:10s} {ck.name:24s} {r['checks_passed']:2d} of {r['checks']} checks, "
