@@ -43,6 +43,10 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
                    help="augmentation: tilt a share of the objects (--tilt-share, default 0.5) about a random "
                    "horizontal axis by up to DEG degrees (default 0: none)")
     p.add_argument("--tilt-share", type=float, default=0.5, help="share of objects tilted (with --tilt-deg)")
+    p.add_argument("--frame-margin-max", type=float, default=0.0, metavar="M",
+                   help="augmentation: draw each object's grid margin between the checkpoint's (0.05: the object "
+                   "spans 0.9 of the grid) and M, so it learns objects that fill less of their grid, as a crop or "
+                   "leftover capture makes them (benchmarks/bench_framing.py; default 0: off)")
     p.add_argument("--workers", type=int, default=1, help="processes reading the dataset")
     p.add_argument("--limit-train", type=int, default=None, help="use only the first K train objects")
     p.add_argument("--limit-val", type=int, default=None, help="use only the first K val objects")
@@ -96,13 +100,15 @@ def run(args: argparse.Namespace) -> int:
                          f"{MULTIPLIER_RANGE[1]} (got '{args.multipliers}')")
     if not (0.0 <= args.tilt_deg <= 90.0 and 0.0 <= args.tilt_share <= 1.0):
         raise InputError("--tilt-deg must be within 0–90 and --tilt-share within 0–1")
+    if not 0.0 <= args.frame_margin_max <= 0.45:
+        raise InputError(f"--frame-margin-max must be within 0–0.45 (got {args.frame_margin_max})")
     if not (math.isfinite(args.anchor_weight) and args.anchor_weight >= 0.0):
         raise InputError(f"--anchor-weight must be a finite number ≥ 0 (got {args.anchor_weight})")
     if args.anchor_weight > 0 and not args.init:
         raise InputError("--anchor-weight needs --init (the weights to stay near)")
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, time_budget_s=args.time_budget_s,
                       seed=args.seed, augment=not args.no_augment, workers=args.workers,
-                      tilt_max_deg=args.tilt_deg, tilt_share=args.tilt_share,
+                      tilt_max_deg=args.tilt_deg, tilt_share=args.tilt_share, margin_max=args.frame_margin_max,
                       limit_train=args.limit_train, limit_val=args.limit_val, input_mode=args.inputs,
                       init_from=args.init, objects_per_build=args.build_objects, keep_epochs=args.keep_epochs,
                       anchor_weight=args.anchor_weight,

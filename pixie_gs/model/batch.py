@@ -4,8 +4,9 @@ Inputs go through exactly the code `pixie annotate` uses (`prepare_gaussians` + 
 `grid_channels`). Voxel labels come from the same weights w_i(x) = α_i G_i(x): the class is the
 weighted vote of the Gaussians' material ids, the targets their weighted mean normalised
 (log10 E, ν, log10 ρ). Augmentation acts on the Gaussians before normalisation: a random yaw
-rotation about +z, random x/y flips, per-axis scale jitter (covariances follow: Σ' = A Σ Aᵀ) and
-colour jitter (per-channel gain and a brightness offset).
+rotation about +z, random x/y flips, per-axis scale jitter (covariances follow: Σ' = A Σ Aᵀ),
+colour jitter (per-channel gain and a brightness offset) and, when asked, a random tilt and a random
+grid margin (framing).
 """
 from __future__ import annotations
 
@@ -28,6 +29,10 @@ class AugmentConfig:
     # objects stand nearly upright (residual tilt ≤ 20°), so a metal can tilted 30° read as elastic.
     tilt_max_deg: float = 0.0
     tilt_share: float = 0.5
+    # Framing: each object's grid margin drawn uniformly between the spec's margin and this (0: always the
+    # spec's). An object may fill much less of the grid in use (a crop, a ground plane, leftover capture),
+    # and accuracy falls as it does (benchmarks/bench_framing.py).
+    margin_max: float = 0.0
 
 
 @dataclass
@@ -95,8 +100,11 @@ def build_batch(store, ids: list[int], spec: FeatureSpec, augment: AugmentConfig
             g = torch.rand(4, generator=gen).to(dev)
             gain = 1.0 + augment.colour_gain * (2 * g[:3] - 1)
             rgb = (rgb * gain + augment.brightness * (2 * g[3] - 1)).clamp(0.0, 1.0)
+        margin = spec.margin
+        if augment is not None and augment.margin_max > spec.margin:  # drawn last: earlier draws unchanged
+            margin += (augment.margin_max - spec.margin) * float(torch.rand(1, generator=gen))
         mu, cv, al, ft, _, _ = prepare_gaussians(
-            GaussianTensors(means, cov, o["alphas"], rgb, o["sh_energy"], o["extras"]), spec.margin)
+            GaussianTensors(means, cov, o["alphas"], rgb, o["sh_energy"], o["extras"]), margin)
         labels = torch.cat([torch.nn.functional.one_hot(o["material_id"], NUM_CLASSES).float(), o["physical"]], 1)
         mus.append(mu)
         covs.append(cv)

@@ -42,6 +42,7 @@ class TrainConfig:
     augment: bool = True
     tilt_max_deg: float = AugmentConfig.tilt_max_deg  # augmentation: tilt a share of objects by up to this angle
     tilt_share: float = AugmentConfig.tilt_share      # (degrees; AugmentConfig holds the defaults)
+    margin_max: float = AugmentConfig.margin_max      # augmentation: each object's grid margin up to this
     workers: int = 1
     limit_train: int | None = None
     limit_val: int | None = None
@@ -232,7 +233,8 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         from torch.nn.parallel import DistributedDataParallel
 
         model = DistributedDataParallel(net, device_ids=[torch.device(device).index] if use_cuda(device) else None)
-    aug = AugmentConfig(tilt_max_deg=cfg.tilt_max_deg, tilt_share=cfg.tilt_share) if cfg.augment else None
+    aug = (AugmentConfig(tilt_max_deg=cfg.tilt_max_deg, tilt_share=cfg.tilt_share, margin_max=cfg.margin_max)
+           if cfg.augment else None)
     per_build = cfg.objects_per_build or default_objects_per_build(device, spec.resolution,
                                                                        len(names) + NUM_CLASSES + 3)
     val_batch = VAL_BATCH_CUDA if use_cuda(device) else VAL_BATCH_CPU
