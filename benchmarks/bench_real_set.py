@@ -57,11 +57,15 @@ def run(cmd: list[str]) -> None:
         raise SystemExit(f"command failed ({done.returncode}): {' '.join(cmd[2:])}: {last[0]}")
 
 
+def expectation_entries(real: Path) -> list[dict]:
+    """The entries of the set's expectations.json (one per asset)."""
+    return json.loads((real / "expectations.json").read_text())
+
+
 def inputs(real: Path, work: Path) -> dict[str, Path]:
     """Expectations file name → splat `pixie annotate` reads (meshes converted once, default flags)."""
-    entries = json.loads((real / "expectations.json").read_text())
     out = {}
-    for entry in entries:
+    for entry in expectation_entries(real):
         src, mesh = source_for(entry["file"], real / "orig")
         if mesh:
             converted = work / "inputs" / entry["file"]
@@ -75,10 +79,8 @@ def inputs(real: Path, work: Path) -> dict[str, Path]:
 def object_box_crops(real: Path, scale: float = 1.0) -> dict[str, list[str]]:
     """Expectations file name → the `--crop box:x0,y0,z0,x1,y1,z1` arguments of its object box (file units),
     grown `scale`× about its centre (1: the box as written)."""
-    entries = json.loads((real / "expectations.json").read_text())
-    entries = entries["assets"] if isinstance(entries, dict) else entries
     crops = {}
-    for e in entries:
+    for e in expectation_entries(real):
         if "object_box" not in e:
             continue
         lo, hi = (np.asarray(c, dtype=float) for c in e["object_box"])
@@ -135,10 +137,11 @@ def main() -> None:
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="pixie_real_"))
     files = inputs(real, work)
     checkpoints = [SHIPPED] + [Path(c) for c in args.checkpoint if Path(c).resolve() != SHIPPED.resolve()]
+    crops = object_box_crops(real, args.box_scale) if args.crop_to_object_box else None
     results = []
     for k, ck in enumerate(checkpoints):
         label = "shipped" if k == 0 else f"candidate{k}"
-        r = score(real, files, ck, work / label, object_box_crops(real, args.box_scale) if args.crop_to_object_box else None)
+        r = score(real, files, ck, work / label, crops)
         r["label"] = label
         results.append(r)
         print(f"{label:10s} {ck.name:24s} {r['checks_passed']:2d} of {r['checks']} checks, "
