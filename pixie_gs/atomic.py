@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Iterator
 
 from .errors import InputError
+from .interrupts import deferred, raise_if_interrupted
 
 
 @contextlib.contextmanager
@@ -33,6 +34,7 @@ def atomic_path(target: str | Path, suffix: str | None = None) -> Iterator[Path]
             umask = os.umask(0)
             os.umask(umask)
             os.chmod(tmp, 0o666 & ~umask)
+        raise_if_interrupted()  # a Ctrl-C/SIGTERM swallowed in a finalizer must not let the output through
         os.replace(tmp, target)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -138,23 +140,6 @@ def remove_stale_staging(target: Path) -> None:
                 shutil.rmtree(entry, ignore_errors=True)
 
 
-@contextlib.contextmanager
-def _signals_deferred() -> Iterator[None]:
-    """Hold SIGINT/SIGTERM until the block ends (they are then delivered as usual), so a step that
-    creates something and records it cannot be split by a signal. No-op off the main thread/POSIX."""
-    import signal
-    import threading
-
-    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
-
-
 class StagedDirectory:
     """Build a folder's new content beside it, then swap it in whole.
 
@@ -170,7 +155,7 @@ class StagedDirectory:
         if not self.target.parent.is_dir():
             raise InputError("parent directory does not exist", self.target.parent)
         remove_stale_staging(self.target)
-        with _signals_deferred():  # a Ctrl-C/SIGTERM between mkdir and registration would orphan the folder
+        with deferred():  # a Ctrl-C/SIGTERM between mkdir and registration would orphan the folder
             self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}{STAGING_TAG}{os.getpid()}-",
                                               dir=self.target.parent))
             _LIVE_STAGING.add(self.path)
@@ -185,13 +170,14 @@ class StagedDirectory:
     def commit(self, keep=lambda name: False) -> Path:
         import shutil
 
+        raise_if_interrupted()  # a Ctrl-C/SIGTERM swallowed in a finalizer must not let the new content in
         if not self.target.exists():
             os.rename(self.path, self.target)
             return self.target
         for entry in self.target.iterdir():
             if keep(entry.name):
                 os.link(entry, self.path / entry.name, follow_symlinks=False)
-        with _signals_deferred():  # the swap and the bookkeeping of what self.path now holds go together
+        with deferred():  # the swap and the bookkeeping of what self.path now holds go together
             if not exchange_paths(self.path, self.target):
                 old = self.path.with_name(self.path.name + "-old")
                 os.rename(self.target, old)

@@ -426,6 +426,71 @@ def test_signal_mid_run_keeps_the_old_output_whole(tmp_path, sig):
     assert leftovers == []
 
 
+_SIGNAL_IN_A_FINALIZER = """
+import os, signal, sys
+from pixie_gs.cli.main import main
+from pixie_gs.sim import frames
+
+class SignalInFinalizer:
+    def __del__(self):  # Python runs the handler here, and drops what a finalizer raises
+        os.kill(os.getpid(), int(sys.argv[1]))
+
+write = frames.FrameWriter.write
+def write_then_signal(self, state):
+    path = write(self, state)
+    if state.index == 2:
+        SignalInFinalizer()  # freed at once, as warp frees its arrays dozens of times a frame
+    return path
+
+frames.FrameWriter.write = write_then_signal
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_signal_that_lands_in_a_finalizer_still_stops_the_run(tmp_path, sig):
+    """A signal handled inside a `__del__` raises there and Python drops it ('Exception ignored'):
+    the run used to finish and replace the old output, exit 0 (the old rare failure of the test
+    above, when the SIGTERM landed in a warp array's finalizer)."""
+    ply, sc, out = _annotated(tmp_path, n=200), _scene(tmp_path), tmp_path / "o"
+    assert main(_simulate(ply, out, sc, 2)) == 0
+    old = _snapshot(out)
+    proc = subprocess.run([sys.executable, "-c", _SIGNAL_IN_A_FINALIZER, str(int(sig)),
+                           *_simulate(ply, out, sc, 30, "--force")], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=300, preexec_fn=default_sigint)
+    assert proc.returncode == (143 if sig == signal.SIGTERM else 130), proc.stderr
+    assert _snapshot(out) == old
+    assert [line for line in proc.stderr.splitlines() if line.strip()] == \
+        ["pixie simulate: " + ("terminated (SIGTERM); partial output removed" if sig == signal.SIGTERM
+                               else "interrupted")]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.ply", "o", "scene.json"]
+
+
+def test_interrupt_dropped_by_a_finalizer_stops_a_single_file_output(tmp_path):
+    """The same for one output file written through atomic_path (annotate, convert, prepare…), and
+    the command's handlers are put back afterwards."""
+    from pixie_gs import interrupts
+    from pixie_gs.atomic import atomic_path
+
+    class SignalInFinalizer:
+        def __del__(self):
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    before = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT), sys.unraisablehook
+    previous = interrupts.install()
+    try:
+        with pytest.raises(interrupts.Terminated):
+            with atomic_path(tmp_path / "out.ply") as tmp:
+                tmp.write_bytes(b"ply\nnew")
+                SignalInFinalizer()
+                assert interrupts.pending() == signal.SIGTERM  # recorded although the raise was dropped
+    finally:
+        interrupts.restore(previous)
+    assert list(tmp_path.iterdir()) == []
+    assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT), sys.unraisablehook) == before
+    assert interrupts.pending() is None
+
+
 def test_tracks_are_memory_mapped_not_held_in_memory(tmp_path):
     """The writer hands `simulate` a (T,N,3) array backed by a file in the staging folder."""
     from pixie_gs.sim.frames import FrameWriter

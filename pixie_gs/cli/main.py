@@ -14,8 +14,10 @@ import importlib
 import signal
 import sys
 
+from .. import interrupts
 from ..devices import thread_defaults
 from ..errors import PixieError
+from ..interrupts import Terminated
 from ..progress import set_quiet
 
 COMMANDS = ["demo", "info", "convert", "generate", "train", "evaluate", "prepare", "annotate", "simulate", "render", "diagnose"]
@@ -67,9 +69,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     set_quiet(getattr(args, "quiet", False))
-    previous = _handle_sigterm()
+    previous = interrupts.install()
     try:
         result = args.func(args)
+        interrupts.raise_if_interrupted()  # one swallowed after the command's last check still ends it
     except PixieError as exc:
         print(f"pixie {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
@@ -95,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
         from ..atomic import remove_live_staging
 
         remove_live_staging()  # a signal between two statements must not orphan a staging folder
-        _restore_sigterm(previous)
+        interrupts.restore(previous)
     if argv is None and getattr(args, "exit_at_once", False):
         exit_at_once(int(result or 0))
     return int(result or 0)
@@ -126,30 +129,6 @@ def skip_final_collection() -> None:
     0.5 s of the exit of an annotate at load average 4.5, 0.16 s with this). Streams are still
     flushed and atexit callbacks run; only cyclic garbage left at exit is not collected."""
     gc.freeze()
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised like Ctrl-C so every `except BaseException`/`finally` cleanup runs."""
-
-
-def _on_sigterm(signum, frame) -> None:
-    raise Terminated()
-
-
-def _handle_sigterm():
-    """Install the SIGTERM handler (main thread only); returns the previous handler."""
-    try:
-        return signal.signal(signal.SIGTERM, _on_sigterm)
-    except ValueError:  # not the main thread (e.g. called from a worker thread)
-        return None
-
-
-def _restore_sigterm(previous) -> None:
-    if previous is not None:
-        try:
-            signal.signal(signal.SIGTERM, previous)
-        except ValueError:
-            pass
 
 
 def os_error_text(exc: OSError) -> str:

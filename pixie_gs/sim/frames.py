@@ -16,6 +16,7 @@ import numpy as np
 
 from ..atomic import atomic_path
 from ..errors import ComputationError, InputError, require_finite_result
+from ..interrupts import raise_if_interrupted
 from ..splat import SplatCloud, write_splat
 from .run import FrameState
 
@@ -148,6 +149,7 @@ class FrameWriter:
         return self.staging.path
 
     def write(self, state: FrameState) -> Path:
+        raise_if_interrupted()  # once per frame: a signal swallowed in a finalizer stops the run here
         frame = frame_cloud(self.base, self.cov0, state)
         require_finite_result({"positions": frame.means, "scales": frame.log_scales, "rotations": frame.rotations},
                               f"frame {state.index}", self.out_dir)
