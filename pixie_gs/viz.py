@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Iterable, Sequence
 import numpy as np
 
 from .errors import InputError
+from .interrupts import raise_if_interrupted
 from .materials import LOG10_E_RANGE, MATERIAL_COLORS, MATERIAL_NAMES
 
 if TYPE_CHECKING:  # rerun is a heavy import; only load it when a recording is made
@@ -120,6 +121,7 @@ def close_recording(rec: "rr.RecordingStream") -> Path | None:
     if pending is None:
         return None
     tmp, final = pending
+    raise_if_interrupted()  # a Ctrl-C/SIGTERM swallowed in a finalizer must not publish the recording
     os.replace(tmp, final)
     return final
 

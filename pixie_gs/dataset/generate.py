@@ -13,13 +13,12 @@ from __future__ import annotations
 import contextlib
 import json
 import multiprocessing
-import os
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..atomic import StagedDirectory
 from ..errors import InputError
 from ..progress import is_quiet, progress, set_quiet
 from .assemble import build_object, extent_record
@@ -194,10 +193,8 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
     final = out_dir / split
     if final.exists() and not force:
         raise InputError(f"already holds a '{split}' split (use --force to replace it)", final)
-    partial = out_dir / f".{split}.partial-{os.getpid()}"
-    if partial.exists():
-        shutil.rmtree(partial)
-    partial.mkdir()
+    staging = StagedDirectory(final)  # the split is built beside `final` and swapped in whole
+    partial = staging.path
     tasks = [ObjectTask(i, class_for_index(i, chosen), object_seed(seed, split, i), n_gaussians, str(partial),
                         table_arg, realistic, partner_for_index(seed, split, i, chosen, pair_share),
                         floor_seed_for_index(seed, split, i, floor_share), leftover_share)
@@ -212,15 +209,9 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
                  "leftover_share": leftover_share if realistic else 0.0,
                  "objects": entries}
         (partial / INDEX_NAME).write_text(json.dumps(index, indent=1) + "\n")
-        if final.exists():
-            old = out_dir / f".{split}.old-{os.getpid()}"
-            final.rename(old)
-            partial.rename(final)
-            shutil.rmtree(old)
-        else:
-            partial.rename(final)
+        staging.commit()
     except BaseException:
-        shutil.rmtree(partial, ignore_errors=True)
+        staging.abort()
         for d in created:  # innermost first: leave no empty folder behind
             with contextlib.suppress(OSError):
                 d.rmdir()
