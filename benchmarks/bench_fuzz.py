@@ -157,7 +157,7 @@ def run_interruptions(work: Path, trials: int, seed: int = 7) -> dict:
     print(f"\ninterrupting `pixie simulate --force` ({n} Gaussians, {new_frames} frames over an existing "
           f"{old_frames}-frame output; an uninterrupted run takes {run_s:.1f} s): {trials} trials per signal")
     print(f"{'signal':8s} {'old whole':>10s} {'new whole':>10s} {'mixed':>6s} {'leftovers':>10s} "
-          f"{'tracebacks':>11s} {'input changed':>14s}")
+          f"{'tracebacks':>11s} {'input changed':>14s} {'signal lost':>12s}")
     before_input = ply.read_bytes()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
         tally = collections.Counter()
@@ -168,8 +168,11 @@ def run_interruptions(work: Path, trials: int, seed: int = 7) -> dict:
             proc = subprocess.Popen(_simulate_argv(ply, out, scene, new_frames), cwd=base,
                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             time.sleep(delay)
+            running = proc.poll() is None
             proc.send_signal(sig)
             _, err = proc.communicate(timeout=120)
+            if running and proc.returncode == 0:
+                tally["signal lost"] += 1  # sent to a live run that then exited 0 as if never asked to stop
             if _snapshot(out) == old:
                 tally["old whole"] += 1
             elif _is_whole_new(out, new_frames, n):
@@ -198,7 +201,8 @@ def run_interruptions(work: Path, trials: int, seed: int = 7) -> dict:
         name = signal.Signals(sig).name
         results[name] = dict(tally)
         print(f"{name:8s} {tally['old whole']:10d} {tally['new whole']:10d} {tally['mixed']:6d} "
-              f"{tally['leftovers']:10d} {tally['tracebacks']:11d} {tally['input changed']:14d}"
+              f"{tally['leftovers']:10d} {tally['tracebacks']:11d} {tally['input changed']:14d} "
+              f"{tally['signal lost']:12d}"
               + (f"   (staging folders left by killed runs: {tally['killed-run staging folders']}, all cleared "
                  f"by the next run)" if sig == signal.SIGKILL else "")
               + (f"   ({tally['python start-up']} landed in CPython's start-up, before any pixie code: its own "
