@@ -135,6 +135,12 @@ def _is_whole_new(folder: Path, frames: int, n: int) -> bool:
     return all(np.array_equal(read_splat(folder / f"frame_{i:05d}.ply").means, x[i]) for i in range(frames))
 
 
+def _sigint_at_default() -> None:
+    """In the child before exec: SIGINT as a terminal delivers it, even when this benchmark runs as a
+    background job (which starts with SIGINT ignored, and the child would inherit that)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def run_interruptions(work: Path, trials: int, seed: int = 7) -> dict:
     rng = np.random.default_rng(seed)
     base = work / "interrupt"
@@ -166,21 +172,25 @@ def run_interruptions(work: Path, trials: int, seed: int = 7) -> dict:
             shutil.copytree(pristine, out)
             delay = float(rng.uniform(0.0, run_s * 1.05))
             proc = subprocess.Popen(_simulate_argv(ply, out, scene, new_frames), cwd=base,
-                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                    preexec_fn=_sigint_at_default)
+            folder = out.stat().st_ino  # the commit swaps a new folder in under this name
             time.sleep(delay)
-            running = proc.poll() is None
+            still_working = proc.poll() is None and out.stat().st_ino == folder
             proc.send_signal(sig)
             _, err = proc.communicate(timeout=120)
-            if running and proc.returncode == 0:
-                tally["signal lost"] += 1  # sent to a live run that then exited 0 as if never asked to stop
+            if still_working and proc.returncode == 0:
+                tally["signal lost"] += 1  # sent before the commit, yet the run finished and exited 0
             if _snapshot(out) == old:
                 tally["old whole"] += 1
             elif _is_whole_new(out, new_frames, n):
                 tally["new whole"] += 1
             else:
                 tally["mixed"] += 1
-            if "init_import_site" in err or "<frozen site>" in err:
-                tally["python start-up"] += 1  # Ctrl-C inside CPython's own start-up, before any pixie code
+            if "Traceback" in err and "/pixie_gs/" not in err and any(
+                    mark in err for mark in ("init_import_site", "<frozen site>", "<frozen runpy>")):
+                tally["python start-up"] += 1  # Ctrl-C inside CPython's own start-up (site, or runpy finding
+                # the module), before any pixie code runs
             elif "Traceback" in err:
                 tally["tracebacks"] += 1
             stray = [p.name for p in base.iterdir() if p.name not in ("in.ply", "scene.json", "out", "pristine")]
