@@ -491,6 +491,35 @@ def test_interrupt_dropped_by_a_finalizer_stops_a_single_file_output(tmp_path):
     assert interrupts.pending() is None
 
 
+def test_signal_inside_a_deferred_block_is_raised_when_the_block_ends():
+    """`deferred()` keeps a few statements together: a SIGTERM sent inside does not cut them, and is
+    raised as the block ends (also when another thread, which the main thread's mask does not cover,
+    takes the signal: the handler then records instead of raising)."""
+    import threading
+
+    from pixie_gs import interrupts
+
+    steps = []
+    done = threading.Event()
+    helper = threading.Thread(target=done.wait)  # a thread that does not block SIGTERM: the kernel hands it
+    helper.start()  # the signal, and Python runs the handler in the main thread inside the block
+    previous = interrupts.install()
+    try:
+        with pytest.raises(interrupts.Terminated):
+            with interrupts.deferred():
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(0.05)
+                steps.append("after the signal")
+                time.sleep(0.01)
+                steps.append("end of block")
+            steps.append("after the block")  # never reached
+    finally:
+        interrupts.restore(previous)
+        done.set()
+        helper.join()
+    assert steps == ["after the signal", "end of block"]
+
+
 def test_tracks_are_memory_mapped_not_held_in_memory(tmp_path):
     """The writer hands `simulate` a (T,N,3) array backed by a file in the staging folder."""
     from pixie_gs.sim.frames import FrameWriter
