@@ -491,6 +491,65 @@ def test_interrupt_dropped_by_a_finalizer_stops_a_single_file_output(tmp_path):
     assert interrupts.pending() is None
 
 
+_SECOND_CTRL_C_IN_CLEAN_UP = """
+import os, signal, sys
+from pixie_gs import atomic
+from pixie_gs.cli.main import main
+from pixie_gs.sim import frames
+
+write = frames.FrameWriter.write
+def write_then_ctrl_c(self, state):
+    path = write(self, state)
+    if state.index == 2:
+        os.kill(os.getpid(), signal.SIGINT)
+    return path
+
+clean_up = atomic.remove_live_staging
+def ctrl_c_again_then_clean_up():
+    os.kill(os.getpid(), signal.SIGINT)  # the impatient second Ctrl-C, as main cleans up
+    clean_up()
+
+frames.FrameWriter.write = write_then_ctrl_c
+atomic.remove_live_staging = ctrl_c_again_then_clean_up
+sys.argv = ["pixie", *sys.argv[1:]]
+sys.exit(main())
+"""
+
+_CTRL_C_AT_EXIT = """
+import atexit, os, signal, sys, time
+from pixie_gs.cli.main import main
+
+def ctrl_c_at_exit():
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(0.05)
+
+atexit.register(ctrl_c_at_exit)  # runs in the interpreter's exit, after the command has ended
+sys.argv = ["pixie", *sys.argv[1:]]
+sys.exit(main())
+"""
+
+
+def test_second_ctrl_c_during_clean_up_and_ctrl_c_at_exit_print_no_traceback(tmp_path):
+    """Once a command is interrupted or done, further signals are noted only: a second Ctrl-C while
+    main removes the staging folder does not cut that clean-up, and one during the interpreter's exit
+    does not print Python's KeyboardInterrupt traceback from an atexit callback."""
+    ply, sc, out = _annotated(tmp_path, n=200), _scene(tmp_path), tmp_path / "o"
+    assert main(_simulate(ply, out, sc, 2)) == 0
+    old = _snapshot(out)
+    proc = subprocess.run([sys.executable, "-c", _SECOND_CTRL_C_IN_CLEAN_UP, *_simulate(ply, out, sc, 30, "--force")],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=300, preexec_fn=default_sigint)
+    assert proc.returncode == 130, proc.stderr
+    assert [line for line in proc.stderr.splitlines() if line.strip()] == ["pixie simulate: interrupted"]
+    assert _snapshot(out) == old
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.ply", "o", "scene.json"]
+
+    proc = subprocess.run([sys.executable, "-c", _CTRL_C_AT_EXIT, "info", str(ply)], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=300, preexec_fn=default_sigint)
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr and "KeyboardInterrupt" not in proc.stderr, \
+        proc.stderr
+    assert "200" in proc.stdout  # the command's own output is all there
+
+
 def test_signal_inside_a_deferred_block_is_raised_when_the_block_ends():
     """`deferred()` keeps a few statements together: a SIGTERM sent inside does not cut them, and is
     raised as the block ends (also when another thread, which the main thread's mask does not cover,

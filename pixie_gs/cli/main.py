@@ -77,9 +77,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"pixie {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
     except Terminated:
+        interrupts.stop_raising()  # a second signal must not cut the report or the clean-up
         print(f"pixie {args.command}: terminated (SIGTERM); partial output removed", file=sys.stderr)
         return 128 + signal.SIGTERM
     except KeyboardInterrupt:
+        interrupts.stop_raising()
         print(f"pixie {args.command}: interrupted", file=sys.stderr)
         return 130
     except MemoryError:
@@ -97,8 +99,10 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         from ..atomic import remove_live_staging
 
+        interrupts.stop_raising()
         remove_live_staging()  # a signal between two statements must not orphan a staging folder
-        interrupts.restore(previous)
+        if argv is not None:  # a caller that goes on; the `pixie` process itself keeps them through its exit
+            interrupts.restore(previous)
     if argv is None and getattr(args, "exit_at_once", False):
         exit_at_once(int(result or 0))
     return int(result or 0)
