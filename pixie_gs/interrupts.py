@@ -83,20 +83,23 @@ def restore(previous: tuple | None) -> None:
     sys.unraisablehook = previous[2]
     with contextlib.suppress(ValueError, TypeError):
         signal.signal(signal.SIGTERM, previous[0])
-        if signal.getsignal(signal.SIGINT) in (_on_signal, _record_only):
+        if signal.getsignal(signal.SIGINT) in (_on_signal, _record_only, signal.SIG_DFL):
             signal.signal(signal.SIGINT, previous[1])
 
 
 def _record_only(signum: int, frame) -> None:
     global _pending
     _pending = signum
+    signal.signal(signum, signal.SIG_DFL)  # one more of the same ends the process at once (a hung exit)
 
 
 def stop_raising() -> None:
     """From here on a Ctrl-C/SIGTERM is noted and nothing more: once the command has been interrupted
     or has ended, its clean-up and the interpreter's exit must not be cut by a second signal (Python's
     own handler would print a KeyboardInterrupt traceback, and a half-done clean-up would leave a
-    staging folder). `restore` puts the earlier handlers back for callers that go on."""
+    staging folder). The first such signal is noted; the next one of the same kind ends the process at
+    once, without Python, as a user pressing Ctrl-C again at a hung exit expects. `restore` puts the
+    earlier handlers back for callers that go on."""
     if threading.current_thread() is not threading.main_thread():
         return
     signal.signal(signal.SIGTERM, _record_only)
