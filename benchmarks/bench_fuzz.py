@@ -135,12 +135,6 @@ def _is_whole_new(folder: Path, frames: int, n: int) -> bool:
     return all(np.array_equal(read_splat(folder / f"frame_{i:05d}.ply").means, x[i]) for i in range(frames))
 
 
-def _sigint_at_default() -> None:
-    """In the child before exec: SIGINT as a terminal delivers it, even when this benchmark runs as a
-    background job (which starts with SIGINT ignored, and the child would inherit that)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 def run_interruptions(work: Path, trials: int, seed: int = 7) -> dict:
     rng = np.random.default_rng(seed)
     base = work / "interrupt"
@@ -173,7 +167,7 @@ def run_interruptions(work: Path, trials: int, seed: int = 7) -> dict:
             delay = float(rng.uniform(0.0, run_s * 1.05))
             proc = subprocess.Popen(_simulate_argv(ply, out, scene, new_frames), cwd=base,
                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                    preexec_fn=_sigint_at_default)
+                                    preexec_fn=fc.default_sigint)
             folder = out.stat().st_ino  # the commit swaps a new folder in under this name
             time.sleep(delay)
             still_working = proc.poll() is None and out.stat().st_ino == folder

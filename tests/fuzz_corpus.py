@@ -24,6 +24,14 @@ from plyfile import PlyData, PlyElement
 SH_C0 = 0.28209479177387814
 
 
+def default_sigint() -> None:
+    """`preexec_fn` for a `pixie` child that a test or benchmark interrupts: Ctrl-C as a terminal delivers
+    it. A shell starts background jobs with SIGINT ignored and Python keeps an inherited SIG_IGN, so under
+    `pytest &` the child would run on (the SIGINT case's old "rare flake": it failed every time in a
+    background job without this)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 # ------------------------------------------------------------------------- valid building blocks
 def vertex_table(n: int = 200, seed: int = 0, materials: bool = False, extras: bool = True) -> np.ndarray:
     """A 3DGS vertex table (degree-1 SH, a float feature extra, optional material attributes)."""

@@ -14,8 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fuzz_corpus import vertex_table, write_ply
-from test_reliability import default_sigint
+from fuzz_corpus import default_sigint, vertex_table, write_ply
 from pixie_gs.batch.steps import WORKER_ENV, AnnotateOptions, PreparingAhead
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux") or len(os.sched_getaffinity(0)) < 2,

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fuzz_corpus import vertex_table, write_ply
+from fuzz_corpus import default_sigint, vertex_table, write_ply
 
 from pixie_gs.cli.main import main
 from pixie_gs.errors import InputError
@@ -377,13 +377,6 @@ def test_failed_forced_run_keeps_the_old_output_whole(tmp_path, capsys):
     assert sorted(new) == ["frame_00000.ply", "frame_00001.ply", "notes.txt", "preview.png", "tracks.npz"]
     assert new["notes.txt"] == b"mine" and np.load(out / "tracks.npz")["x"].shape[0] == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["diverge.json", "in.ply", "o", "scene.json"]
-
-
-def default_sigint() -> None:
-    """In the child before exec: Ctrl-C as a terminal delivers it. A shell starts background jobs with
-    SIGINT ignored and Python keeps an inherited SIG_IGN, so under `pytest &` the child would run on
-    (the SIGINT case's old "rare flake": it fails every time in a background job without this)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _start_simulate(tmp_path: Path, ply: Path, out: Path, sc: Path, frames: int) -> subprocess.Popen:
