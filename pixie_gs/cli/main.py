@@ -17,7 +17,6 @@ import sys
 from .. import interrupts
 from ..devices import thread_defaults
 from ..errors import PixieError
-from ..interrupts import Terminated
 from ..progress import set_quiet
 
 COMMANDS = ["demo", "info", "convert", "generate", "train", "evaluate", "prepare", "annotate", "simulate", "render", "diagnose"]
@@ -76,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     except PixieError as exc:
         print(f"pixie {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
-    except Terminated:
+    except interrupts.Terminated:
         interrupts.stop_raising()  # a second signal must not cut the report or the clean-up
         print(f"pixie {args.command}: terminated (SIGTERM); partial output removed", file=sys.stderr)
         return 128 + signal.SIGTERM
