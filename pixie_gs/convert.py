@@ -38,6 +38,7 @@ def load_mesh(path: str | Path) -> "trimesh.Trimesh":  # noqa: F821 (trimesh imp
     path = require_file(path, "a mesh file")
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise InputError(f"unsupported mesh type '{path.suffix}' (use {', '.join(MESH_SUFFIXES)})", path)
+    _refuse_undecodable_gltf(path)
     try:
         loaded = trimesh.load(str(path), process=False)
     except Exception as exc:  # trimesh raises many types for malformed files
@@ -55,6 +56,45 @@ def load_mesh(path: str | Path) -> "trimesh.Trimesh":  # noqa: F821 (trimesh imp
         raise InputError("has zero surface area (all triangles degenerate)", path)
     mesh.metadata["source"] = str(path)
     return mesh
+
+
+# glTF extensions that replace the geometry with a compressed stream trimesh cannot decode; a file that only
+# *uses* one keeps plain fallback geometry, so only `extensionsRequired` is refused.
+UNDECODABLE_GLTF_EXTENSIONS = ("KHR_draco_mesh_compression", "EXT_meshopt_compression")
+
+
+def _gltf_required_extensions(path: Path) -> list[str]:
+    """`extensionsRequired` of a .glb / .gltf file's JSON (empty when there is none or it cannot be read: the
+    loader then reports the real problem)."""
+    import json
+    import struct
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(20)
+            if head[:4] == b"glTF":
+                length, kind = struct.unpack("<I4s", head[12:20])
+                if kind != b"JSON" or length > 64 * 2**20:
+                    return []
+                text = f.read(length)
+            else:
+                text = head + f.read(64 * 2**20)
+        required = json.loads(text).get("extensionsRequired", [])
+    except (OSError, ValueError, struct.error, AttributeError):
+        return []
+    return [str(e) for e in required] if isinstance(required, list) else []
+
+
+def _refuse_undecodable_gltf(path: Path) -> None:
+    """One clear error for compressed glTF geometry (Draco, meshopt), which trimesh would otherwise read as
+    degenerate triangles ("zero surface area")."""
+    if path.suffix.lower() not in (".glb", ".gltf"):
+        return
+    compressed = [e for e in _gltf_required_extensions(path) if e in UNDECODABLE_GLTF_EXTENSIONS]
+    if compressed:
+        raise InputError(f"its geometry is compressed with {', '.join(compressed)}, which pixie cannot decode: "
+                         "export it again without mesh compression (e.g. Blender's glTF export with "
+                         "'Compression' off)", path)
 
 
 def _triangle_meshes(loaded) -> list:

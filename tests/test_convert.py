@@ -322,3 +322,44 @@ def test_convert_refuses_mesh_flags_for_splat_input_and_bad_splats(tmp_path, cap
     code, err = run_cli(["convert", str(bad), str(tmp_path / "o.ply")], capsys)
     assert code == 1 and len(err.strip().splitlines()) == 1 and "gzip" in err
     assert not (tmp_path / "o.ply").exists()
+
+
+def _glb_with_extensions(path, used: list[str], required: list[str]) -> None:
+    """A real box .glb (trimesh's export) whose JSON chunk is rewritten to list glTF extensions."""
+    import json
+    import struct
+
+    data = trimesh.creation.box().export(file_type="glb")
+    json_len = struct.unpack("<I", data[12:16])[0]
+    doc = json.loads(data[20:20 + json_len])
+    doc["extensionsUsed"] = used
+    if required:
+        doc["extensionsRequired"] = required
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    rest = data[20 + json_len:]
+    body = struct.pack("<I4s", len(text), b"JSON") + text + rest
+    path.write_bytes(b"glTF" + struct.pack("<II", 2, 12 + len(body)) + body)
+
+
+@pytest.mark.parametrize("extension", ["KHR_draco_mesh_compression", "EXT_meshopt_compression"])
+def test_compressed_gltf_geometry_is_named_not_called_degenerate(tmp_path, capsys, extension):
+    """Sketchfab and PlayCanvas ship Draco-compressed .glb files (the chess board in
+    benchmarks/real_holdout); trimesh reads their geometry as degenerate triangles. The error must name the
+    compression, not the "zero surface area" trimesh's reading implies, and write nothing."""
+    mesh_path, out = tmp_path / "chess.glb", tmp_path / "out.ply"
+    _glb_with_extensions(mesh_path, [extension], [extension])
+    before = mesh_path.read_bytes()
+    code, err = run_cli(["convert", str(mesh_path), str(out), "-q"], capsys)
+    lines = err.strip().splitlines()
+    assert code == 1 and len(lines) == 1
+    assert "chess.glb" in lines[0] and extension in lines[0] and "zero surface" not in lines[0]
+    assert not out.exists() and mesh_path.read_bytes() == before
+
+
+def test_gltf_that_only_uses_an_extension_still_converts(tmp_path, capsys):
+    """A file may list a compression in extensionsUsed while keeping plain geometry as its fallback: that reads."""
+    mesh_path, out = tmp_path / "box.glb", tmp_path / "out.ply"
+    _glb_with_extensions(mesh_path, ["KHR_draco_mesh_compression"], [])
+    code, _ = run_cli(["convert", str(mesh_path), str(out), "--count", "300", "-q"], capsys)
+    assert code == 0 and len(read_splat(out)) == 300
