@@ -17,7 +17,12 @@ near tie (docs/model_card.md, "Candidates r51 and r52": the redplant's foliage).
     python benchmarks/bench_real_set.py --crop-to-object-box                 # each asset cropped to its box
     python benchmarks/bench_real_set.py --crop-to-object-box --box-scale 1.5 # … to its box grown 1.5×
 
-Needs ../shared/real (not part of a user's clone); `--real DIR` points elsewhere.
+Needs ../shared/real (not part of a user's clone); `--real DIR` points elsewhere. The second real set,
+benchmarks/real_holdout (expectations written from what each object is made of, before any checkpoint ran on
+it; README there), keeps only its expectations and provenance in the repository; its published files go in a
+folder of your own, and the development set's scorer scores it:
+
+    python benchmarks/bench_real_set.py --real benchmarks/real_holdout --orig DIR --scorer ../shared/real/score.py
 """
 from __future__ import annotations
 
@@ -43,8 +48,9 @@ SUMMARY_LINE = re.compile(r"real plausibility: (\d+) of (\d+) checks, (\d+) of (
 def source_for(entry_file: str, orig: Path) -> tuple[Path, bool]:
     """(published file behind an expectations entry, whether it is a mesh to convert first)."""
     stem = Path(entry_file).stem
-    for candidate, mesh in ((orig / f"{stem}.glb", True), (orig / entry_file, False),
-                            (orig / f"{stem}.compressed.ply", False)):
+    for candidate, mesh in ((orig / f"{stem}.glb", True), (orig / f"{stem}.gltf", True), (orig / entry_file, False),
+                            (orig / f"{stem}.compressed.ply", False), (orig / f"{stem}.splat", False),
+                            (orig / f"{stem}.spz", False)):
         if candidate.exists():
             return candidate, mesh
     raise SystemExit(f"{orig}: no published file for expectations entry '{entry_file}'")
@@ -62,11 +68,11 @@ def expectation_entries(real: Path) -> list[dict]:
     return json.loads((real / "expectations.json").read_text())
 
 
-def inputs(real: Path, work: Path) -> dict[str, Path]:
+def inputs(real: Path, orig: Path, work: Path) -> dict[str, Path]:
     """Expectations file name → splat `pixie annotate` reads (meshes converted once, default flags)."""
     out = {}
     for entry in expectation_entries(real):
-        src, mesh = source_for(entry["file"], real / "orig")
+        src, mesh = source_for(entry["file"], orig)
         if mesh:
             converted = work / "inputs" / entry["file"]
             converted.parent.mkdir(parents=True, exist_ok=True)
@@ -89,7 +95,7 @@ def object_box_crops(real: Path, scale: float = 1.0) -> dict[str, list[str]]:
     return crops
 
 
-def score(real: Path, files: dict[str, Path], checkpoint: Path, out_dir: Path,
+def score(real: Path, scorer: Path, files: dict[str, Path], checkpoint: Path, out_dir: Path,
           extra: dict[str, list[str]] | None = None) -> dict:
     """Annotate every asset with `checkpoint` (default flags, plus `extra[name]`) into `out_dir` and score it."""
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -98,7 +104,7 @@ def score(real: Path, files: dict[str, Path], checkpoint: Path, out_dir: Path,
         run(CLI + ["annotate", str(src), str(out_dir / name), "--device", "cpu", "--checkpoint", str(checkpoint),
                    "-q", "--force"] + (extra or {}).get(name, []))
     seconds = time.perf_counter() - t0
-    done = subprocess.run([sys.executable, str(real / "score.py"), str(real / "expectations.json"), str(out_dir)],
+    done = subprocess.run([sys.executable, str(scorer), str(real / "expectations.json"), str(out_dir)],
                           capture_output=True, text=True)
     if done.returncode != 0 and "real plausibility" not in done.stdout:
         raise SystemExit(f"score.py failed: {(done.stderr or done.stdout).strip()[-300:]}")
@@ -124,6 +130,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--checkpoint", action="append", default=[], help="candidate checkpoint (repeatable)")
     ap.add_argument("--real", default=str(ROOT.parent / "shared" / "real"), help="the real development set folder")
+    ap.add_argument("--orig", default=None, help="folder of the set's published files (default: REAL/orig)")
+    ap.add_argument("--scorer", default=None,
+                    help="score.py to use (default: REAL/score.py, else ../shared/real/score.py)")
     ap.add_argument("--work", default=None, help="folder for converted inputs and annotations (default: a temp dir)")
     ap.add_argument("--json", default=None, help="also write every figure as JSON")
     ap.add_argument("--crop-to-object-box", action="store_true",
@@ -134,14 +143,19 @@ def main() -> None:
     real = Path(args.real)
     if not (real / "expectations.json").exists():
         raise SystemExit(f"{real}: no expectations.json (the real development set lives in ../shared/real)")
+    orig = Path(args.orig) if args.orig else real / "orig"
+    scorer = Path(args.scorer) if args.scorer else next(
+        (p for p in (real / "score.py", ROOT.parent / "shared" / "real" / "score.py") if p.exists()), real / "score.py")
+    if not scorer.exists():
+        raise SystemExit(f"{scorer}: no scorer (give --scorer PATH to the real set's score.py)")
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="pixie_real_"))
-    files = inputs(real, work)
+    files = inputs(real, orig, work)
     checkpoints = [SHIPPED] + [Path(c) for c in args.checkpoint if Path(c).resolve() != SHIPPED.resolve()]
     crops = object_box_crops(real, args.box_scale) if args.crop_to_object_box else None
     results = []
     for k, ck in enumerate(checkpoints):
         label = "shipped" if k == 0 else f"candidate{k}"
-        r = score(real, files, ck, work / label, crops)
+        r = score(real, scorer, files, ck, work / label, crops)
         r["label"] = label
         results.append(r)
         print(f"{label:10s} {ck.name:24s} {r['checks_passed']:2d} of {r['checks']} checks, "
