@@ -41,7 +41,7 @@ ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = ROOT / "pixie_gs" / "data" / "checkpoints" / "pixie_default.pt"
 CLI = [sys.executable, "-m", "pixie_gs.cli.main"]
 ASSET_LINE = re.compile(r"^(?P<file>\S+): (?P<ok>\d+)/(?P<n>\d+) ")
-CHECK = re.compile(r"\[(?P<verdict>ok|FAIL)\] (?P<region>[^:]+): (?P<share>[\d.]+) of \d+ \(need (?P<need>[\d.]+)\)")
+CHECK = re.compile(r"\[(?P<verdict>ok|FAIL)\] (?P<region>.+?): (?P<share>[\d.]+) of \d+ \(need (?P<need>[\d.]+)\)")
 SUMMARY_LINE = re.compile(r"real plausibility: (\d+) of (\d+) checks, (\d+) of (\d+) assets")
 
 
@@ -95,6 +95,35 @@ def object_box_crops(real: Path, scale: float = 1.0) -> dict[str, list[str]]:
     return crops
 
 
+def region_confidence(real: Path, out_dir: Path) -> dict[str, list[float]]:
+    """Expectations file name → per check, the mean `confidence` annotate wrote for the Gaussians inside the
+    check's box (inclusive, as score.py selects them; NaN for an empty box)."""
+    from plyfile import PlyData
+
+    out = {}
+    for entry in expectation_entries(real):
+        v = PlyData.read(str(out_dir / entry["file"]))["vertex"].data
+        xyz = np.stack([v["x"], v["y"], v["z"]], 1).astype(float)
+        conf = np.asarray(v["confidence"], float)
+        means = []
+        for region in entry["regions"]:
+            lo, hi = (np.asarray(c, float) for c in region["box"])
+            inside = np.all((xyz >= lo) & (xyz <= hi), axis=1)
+            means.append(float(conf[inside].mean()) if inside.any() else float("nan"))
+        out[entry["file"]] = means
+    return out
+
+
+def pass_fail_auroc(passed: list[bool], confidence: list[float]) -> float | None:
+    """Probability that a passed check has a higher mean confidence than a failed one (ties ½); None when
+    all checks passed or all failed."""
+    good = [c for p, c in zip(passed, confidence) if p]
+    bad = [c for p, c in zip(passed, confidence) if not p]
+    if not good or not bad:
+        return None
+    return float(np.mean([(g > b) + 0.5 * (g == b) for g in good for b in bad]))
+
+
 def score(real: Path, scorer: Path, files: dict[str, Path], checkpoint: Path, out_dir: Path,
           extra: dict[str, list[str]] | None = None) -> dict:
     """Annotate every asset with `checkpoint` (default flags, plus `extra[name]`) into `out_dir` and score it."""
@@ -121,9 +150,14 @@ def score(real: Path, scorer: Path, files: dict[str, Path], checkpoint: Path, ou
             summary = tuple(int(v) for v in s.groups())
     if summary is None:
         raise SystemExit(f"score.py printed no summary line for {checkpoint}")
+    for name, means in region_confidence(real, out_dir).items():
+        for check, mean in zip(assets.get(name, {}).get("per_check", []), means):
+            check["confidence"] = mean
+    checks = [c for a in assets.values() for c in a["per_check"]]
+    auroc = pass_fail_auroc([c["passed"] for c in checks], [c.get("confidence", float("nan")) for c in checks])
     return {"checkpoint": str(checkpoint), "checks_passed": summary[0], "checks": summary[1],
             "assets_plausible": summary[2], "assets": summary[3], "annotate_s": round(seconds, 1),
-            "per_asset": assets}
+            "confidence_auroc": auroc, "per_asset": assets}
 
 
 def main() -> None:
@@ -176,6 +210,18 @@ def main() -> None:
                 mine = r["per_asset"].get(name, {}).get("per_check", [])
                 cells.append(f"{mine[k]['share']:.3f}{'' if mine[k]['passed'] else '✗'}" if k < len(mine) else "-")
             print(f"  {name[:-4] + ': ' + check['region']:52s} need {check['need']:.2f}  " + "  ".join(f"{c:>7s}" for c in cells))
+    print("\nmean confidence annotate wrote in each check's box, per checkpoint (✗: the check failed); AUROC: how "
+          "often a passed check is more confident than a failed one (0.5: confidence says nothing about failure)")
+    for name in names:
+        for k, check in enumerate(base["per_asset"][name]["per_check"]):
+            cells = []
+            for r in results:
+                mine = r["per_asset"].get(name, {}).get("per_check", [])
+                cells.append(f"{mine[k].get('confidence', float('nan')):.3f}{'' if mine[k]['passed'] else '✗'}"
+                             if k < len(mine) else "-")
+            print(f"  {name[:-4] + ': ' + check['region']:52s}            " + "  ".join(f"{c:>7s}" for c in cells))
+    print(f"  {'AUROC (passed vs failed checks)':52s}            " + "  ".join(
+        f"{'-' if r['confidence_auroc'] is None else format(r['confidence_auroc'], '.3f'):>7s}" for r in results))
     for r in results:
         fails = [f"{n}: {', '.join(a['failed'])}" for n, a in r["per_asset"].items() if a["failed"]]
         print(f"{r['label']} fails: " + ("; ".join(fails) if fails else "nothing"))
