@@ -119,6 +119,48 @@ def test_framing_augmentation_shrinks_objects_within_their_grid(store):
     assert torch.all(batch.target_class[batch.occupied] == METAL)
 
 
+def test_decals_paint_bounded_balls_of_one_colour_each():
+    """`pixie train --decal-share S`: a share S of objects gets 2–8 balls painted, each one random colour and
+    at most 0.3 of the object's extent in radius; the generator always advances by the same count, so the
+    draws after it (and a run with S = 0) are unchanged."""
+    from pixie_gs.model.batch import DECAL_RADIUS, MAX_DECALS, paint_decals
+
+    rng = np.random.default_rng(0)
+    means = torch.as_tensor(rng.uniform(-1, 1, (3000, 3)) * [1.0, 0.5, 0.25], dtype=torch.float32)
+    rgb = torch.full((3000, 3), 0.5)
+    extent = float((means.max(0).values - means.min(0).values).max())
+    painted_calls = 0
+    for k in range(200):
+        gen_a, gen_b = torch.Generator().manual_seed(k), torch.Generator().manual_seed(k)
+        out = paint_decals(gen_a, means, rgb, 0.3)
+        assert paint_decals(gen_b, means, rgb, 0.0) is rgb
+        assert torch.equal(torch.rand(1, generator=gen_a), torch.rand(1, generator=gen_b))
+        changed = (out != rgb).any(1)
+        if not changed.any():
+            continue
+        painted_calls += 1
+        colours = torch.unique(out[changed], dim=0)
+        assert 1 <= len(colours) <= MAX_DECALS and float(out.min()) >= 0.0 and float(out.max()) <= 1.0
+        for colour in colours:
+            members = means[(out == colour).all(1)]
+            span = float(torch.cdist(members, members).max())
+            assert span <= 2 * DECAL_RADIUS[1] * extent + 1e-5
+    assert 0.2 < painted_calls / 200 < 0.4
+
+
+def test_decals_change_colours_only(store):
+    """With decals on every object, geometry and labels are those of the same seed without them; the input
+    grids differ (colour channels)."""
+    for seed in range(3):
+        plain = build_batch(store, [0, 1], SPEC, AugmentConfig(), seed)
+        decal = build_batch(store, [0, 1], SPEC, AugmentConfig(decal_share=1.0), seed)
+        for a, b in zip(plain.means_unit, decal.means_unit):
+            assert torch.equal(a, b)
+        assert torch.equal(plain.occupied, decal.occupied) and torch.equal(plain.target_class, decal.target_class)
+        assert torch.equal(plain.target_physical, decal.target_physical)
+        assert not torch.equal(plain.inputs, decal.inputs)
+
+
 def test_tiny_training_run_reduces_the_loss(store):
     torch.manual_seed(0)
     model = MaterialUNet(ModelConfig(input_channels=NAMES, projector_hidden=8, projector_out=8, base_channels=8,

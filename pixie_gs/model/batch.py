@@ -5,8 +5,8 @@ Inputs go through exactly the code `pixie annotate` uses (`prepare_gaussians` + 
 weighted vote of the Gaussians' material ids, the targets their weighted mean normalised
 (log10 E, ν, log10 ρ). Augmentation acts on the Gaussians before normalisation: a random yaw
 rotation about +z, random x/y flips, per-axis scale jitter (covariances follow: Σ' = A Σ Aᵀ),
-colour jitter (per-channel gain and a brightness offset) and, when asked, a random tilt and a random
-grid margin (framing).
+colour jitter (per-channel gain and a brightness offset) and, when asked, a random tilt, a random
+grid margin (framing) and painted decals (`paint_decals`).
 """
 from __future__ import annotations
 
@@ -33,6 +33,14 @@ class AugmentConfig:
     # spec's). An object may fill much less of the grid in use (a crop, a ground plane, leftover capture),
     # and accuracy falls as it does (benchmarks/bench_framing.py).
     margin_max: float = 0.0
+    # Decals: this share of objects gets 2–MAX_DECALS balls of one random colour painted over its Gaussians
+    # (0: none). Real objects carry labels, paint, prints and dirt; generated metal is plain, so r50 reads a
+    # high-contrast metal helmet (benchmarks/real_holdout) as soft and the same helmet painted grey as metal.
+    decal_share: float = 0.0
+
+
+MAX_DECALS = 8
+DECAL_RADIUS = (0.08, 0.3)  # radius range of one decal, as a share of the object's largest extent
 
 
 @dataclass
@@ -71,6 +79,26 @@ def augmentation_matrix(gen, cfg: AugmentConfig, device):
     return a.to(device)
 
 
+def paint_decals(gen, means, rgb, share: float):
+    """rgb (M,3) with, for a `share` of calls, 2–MAX_DECALS balls painted one uniform random colour each: every
+    Gaussian whose centre (means (M,3)) lies within a ball takes its colour (later balls over earlier ones).
+    Always draws the same count of numbers from `gen`, so what follows does not depend on the outcome."""
+    import torch
+
+    u = torch.rand(2 + 5 * MAX_DECALS, generator=gen)
+    if float(u[0]) >= share or len(means) == 0:
+        return rgb
+    extent = float((means.max(0).values - means.min(0).values).max())
+    painted = rgb.clone()
+    for j in range(2 + int(float(u[1]) * (MAX_DECALS - 1))):
+        d = u[2 + 5 * j: 7 + 5 * j]
+        centre = means[min(int(float(d[0]) * len(means)), len(means) - 1)]
+        radius = extent * (DECAL_RADIUS[0] + (DECAL_RADIUS[1] - DECAL_RADIUS[0]) * float(d[1]))
+        inside = ((means - centre) ** 2).sum(1) <= radius * radius
+        painted[inside] = d[2:5].to(painted.device, painted.dtype)
+    return painted
+
+
 def object_generator(epoch_seed: int, index: int):
     """The random draws that augment object `index` of the store in one epoch (`epoch_seed`): the same
     whichever process builds it, so training on N processes sees the same augmented objects as on one
@@ -103,6 +131,8 @@ def build_batch(store, ids: list[int], spec: FeatureSpec, augment: AugmentConfig
         margin = spec.margin
         if augment is not None and augment.margin_max > spec.margin:  # drawn last: earlier draws unchanged
             margin += (augment.margin_max - spec.margin) * float(torch.rand(1, generator=gen))
+        if augment is not None and augment.decal_share > 0:  # drawn after everything else: earlier draws unchanged
+            rgb = paint_decals(gen, means, rgb, augment.decal_share)
         mu, cv, al, ft, _, _ = prepare_gaussians(
             GaussianTensors(means, cov, o["alphas"], rgb, o["sh_energy"], o["extras"]), margin)
         labels = torch.cat([torch.nn.functional.one_hot(o["material_id"], NUM_CLASSES).float(), o["physical"]], 1)
