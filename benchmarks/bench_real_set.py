@@ -48,7 +48,8 @@ SUMMARY_LINE = re.compile(r"real plausibility: (\d+) of (\d+) checks, (\d+) of (
 def source_for(entry_file: str, orig: Path) -> tuple[Path, bool]:
     """(published file behind an expectations entry, whether it is a mesh to convert first)."""
     stem = Path(entry_file).stem
-    for candidate, mesh in ((orig / f"{stem}.glb", True), (orig / f"{stem}.gltf", True), (orig / entry_file, False),
+    for candidate, mesh in ((orig / f"{stem}.glb", True), (orig / f"{stem}.gltf", True),
+                            (orig / stem / f"{stem}.gltf", True), (orig / entry_file, False),
                             (orig / f"{stem}.compressed.ply", False), (orig / f"{stem}.splat", False),
                             (orig / f"{stem}.spz", False)):
         if candidate.exists():
