@@ -125,6 +125,47 @@ def pass_fail_auroc(passed: list[bool], confidence: list[float]) -> float | None
     return float(np.mean([(g > b) + 0.5 * (g == b) for g in good for b in bad]))
 
 
+def draw_picture(real: Path, result: dict, out_dir: Path, path: Path, per_row: int = 4) -> None:
+    """One picture of a checkpoint's annotations: per asset its colours beside its log10 E (viridis over the
+    dataset range, pixie_gs.viz.log_e_colors), seen from the side (the expectations' up drawn upwards), with
+    the checks passed in the title."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from plyfile import PlyData
+
+    from pixie_gs.splat import read_splat
+    from pixie_gs.viz import log_e_colors
+
+    entries = expectation_entries(real)
+    rows = -(-len(entries) // per_row)
+    fig, axes = plt.subplots(rows, 2 * per_row, figsize=(4.2 * per_row, 2.6 * rows), squeeze=False)
+    for ax in axes.ravel():
+        ax.set_axis_off()
+    rng = np.random.default_rng(0)
+    for k, entry in enumerate(entries):
+        cloud = read_splat(out_dir / entry["file"])
+        E = np.asarray(PlyData.read(str(out_dir / entry["file"]))["vertex"].data["E"], float)
+        up = np.asarray(entry["up"], float) / np.linalg.norm(entry["up"])
+        side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 0.0, 1.0])
+        side /= np.linalg.norm(side)
+        pick = rng.choice(len(E), min(len(E), 25_000), replace=False)
+        depth = np.cross(side, up)
+        pick = pick[np.argsort(cloud.means[pick] @ depth)]  # far Gaussians first, near ones drawn over them
+        xy = np.stack([cloud.means[pick] @ side, cloud.means[pick] @ up], 1)
+        mine = result["per_asset"].get(entry["file"], {})
+        title = f"{entry['file'][:-4][:22]}: {mine.get('passed', 0)}/{len(entry['regions'])}"
+        for j, colours in enumerate((np.clip(cloud.rgb()[pick], 0, 1), log_e_colors(E[pick]))):
+            ax = axes[k // per_row, 2 * (k % per_row) + j]
+            ax.scatter(xy[:, 0], xy[:, 1], s=0.4, c=colours, linewidths=0)
+            ax.set_aspect("equal")
+            ax.set_title(title if j == 0 else "log10 E: 3 (purple) – 11 (yellow) Pa", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=60)
+    plt.close(fig)
+
+
 def score(real: Path, scorer: Path, files: dict[str, Path], checkpoint: Path, out_dir: Path,
           extra: dict[str, list[str]] | None = None) -> dict:
     """Annotate every asset with `checkpoint` (default flags, plus `extra[name]`) into `out_dir` and score it."""
@@ -170,6 +211,8 @@ def main() -> None:
                     help="score.py to use (default: REAL/score.py, else ../shared/real/score.py)")
     ap.add_argument("--work", default=None, help="folder for converted inputs and annotations (default: a temp dir)")
     ap.add_argument("--json", default=None, help="also write every figure as JSON")
+    ap.add_argument("--picture", default=None,
+                    help="also draw the shipped checkpoint's annotations (colour and log10 E per asset) to this PNG")
     ap.add_argument("--crop-to-object-box", action="store_true",
                     help="annotate each asset cropped to its expectations.json object box (default: no crop)")
     ap.add_argument("--box-scale", type=float, default=1.0,
@@ -196,6 +239,8 @@ def main() -> None:
         print(f"{label:10s} {ck.name:24s} {r['checks_passed']:2d} of {r['checks']} checks, "
               f"{r['assets_plausible']} of {r['assets']} assets plausible  (annotate {r['annotate_s']:.0f} s)")
     base = results[0]
+    if args.picture:
+        draw_picture(real, base, work / base["label"], Path(args.picture))
     names = list(base["per_asset"])
     print("\nper asset (checks passed)   " + "  ".join(f"{r['label']:>10s}" for r in results))
     for name in names:
