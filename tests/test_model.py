@@ -161,6 +161,52 @@ def test_decals_change_colours_only(store):
         assert not torch.equal(plain.inputs, decal.inputs)
 
 
+def test_hue_shift_turns_colours_about_grey_and_keeps_draws():
+    """`pixie train --hue-share S`: a share S of objects has its colours turned about the grey axis (greys stay,
+    a turn by 120° maps red to green, the channel mean stays) and its saturation scaled within
+    SATURATION_RANGE; always 3 draws, so a run with S = 0 sees the same numbers after it."""
+    from pixie_gs.model.batch import SATURATION_RANGE, shift_hue
+
+    rgb = torch.tensor([[0.5, 0.5, 0.5], [0.8, 0.2, 0.2], [0.3, 0.6, 0.4], [0.1, 0.2, 0.9]])
+    shifted_calls = 0
+    for k in range(300):
+        gen_a, gen_b = torch.Generator().manual_seed(k), torch.Generator().manual_seed(k)
+        out = shift_hue(gen_a, rgb, 0.5)
+        assert shift_hue(gen_b, rgb, 0.0) is rgb
+        assert torch.equal(torch.rand(1, generator=gen_a), torch.rand(1, generator=gen_b))
+        if torch.equal(out, rgb):
+            continue
+        shifted_calls += 1
+        assert torch.allclose(out[0], rgb[0], atol=1e-6)  # grey stays grey
+        spread_in = (rgb[1:] - rgb[1:].mean(1, keepdim=True)).norm(dim=1)
+        spread_out = (out[1:] - out[1:].mean(1, keepdim=True)).norm(dim=1)
+        unclamped = ((out[1:] > 1e-6) & (out[1:] < 1 - 1e-6)).all(1)
+        ratio = spread_out[unclamped] / spread_in[unclamped]
+        assert torch.all(ratio >= SATURATION_RANGE[0] - 1e-4) and torch.all(ratio <= SATURATION_RANGE[1] + 1e-4)
+        assert torch.allclose(out[1:][unclamped].mean(1), rgb[1:][unclamped].mean(1), atol=1e-5)
+    assert 0.4 < shifted_calls / 300 < 0.6
+
+
+def test_hue_turn_by_a_third_maps_red_to_green():
+    """The turn itself, against colours known without the code: 120° about grey permutes the channels
+    (red → green → blue), and saturation 0 leaves each colour's grey."""
+    from pixie_gs.model.batch import turn_hue
+
+    rgb = torch.tensor([[0.9, 0.1, 0.1], [0.1, 0.9, 0.1], [0.2, 0.4, 0.6]])
+    assert torch.allclose(turn_hue(rgb, 2 * math.pi / 3, 1.0), rgb[:, [2, 0, 1]], atol=1e-5)
+    assert torch.allclose(turn_hue(rgb, 0.3, 0.0), rgb.mean(1, keepdim=True).expand(-1, 3), atol=1e-6)
+
+
+def test_hue_shift_changes_colours_only(store):
+    for seed in range(3):
+        plain = build_batch(store, [0, 1], SPEC, AugmentConfig(decal_share=0.5), seed)
+        hued = build_batch(store, [0, 1], SPEC, AugmentConfig(decal_share=0.5, hue_share=1.0), seed)
+        for a, b in zip(plain.means_unit, hued.means_unit):
+            assert torch.equal(a, b)
+        assert torch.equal(plain.target_class, hued.target_class)
+        assert torch.equal(plain.target_physical, hued.target_physical)
+
+
 def test_tiny_training_run_reduces_the_loss(store):
     torch.manual_seed(0)
     model = MaterialUNet(ModelConfig(input_channels=NAMES, projector_hidden=8, projector_out=8, base_channels=8,

@@ -51,6 +51,10 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
                    help="augmentation: paint 2–8 balls of random colour over a share S of the training objects, as "
                    "labels, prints and paint do on real ones, so colour contrast alone does not say soft "
                    "(benchmarks/real_holdout: a printed metal helmet; default 0: off)")
+    p.add_argument("--hue-share", type=float, default=0.0, metavar="S",
+                   help="augmentation: turn the hue of a share S of the training objects by up to ±180° and scale "
+                   "their saturation by 0.3–1.5, so a material is not read from a palette alone "
+                   "(benchmarks/real_holdout: a photographed plant; default 0: off)")
     p.add_argument("--workers", type=int, default=1, help="processes reading the dataset")
     p.add_argument("--limit-train", type=int, default=None, help="use only the first K train objects")
     p.add_argument("--limit-val", type=int, default=None, help="use only the first K val objects")
@@ -106,8 +110,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--tilt-deg must be within 0–90 and --tilt-share within 0–1")
     if not 0.0 <= args.frame_margin_max <= 0.45:
         raise InputError(f"--frame-margin-max must be within 0–0.45 (got {args.frame_margin_max})")
-    if not 0.0 <= args.decal_share <= 1.0:
-        raise InputError(f"--decal-share must be within 0–1 (got {args.decal_share})")
+    for flag, value in (("--decal-share", args.decal_share), ("--hue-share", args.hue_share)):
+        if not 0.0 <= value <= 1.0:
+            raise InputError(f"{flag} must be within 0–1 (got {value})")
     if not (math.isfinite(args.anchor_weight) and args.anchor_weight >= 0.0):
         raise InputError(f"--anchor-weight must be a finite number ≥ 0 (got {args.anchor_weight})")
     if args.anchor_weight > 0 and not args.init:
@@ -115,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, time_budget_s=args.time_budget_s,
                       seed=args.seed, augment=not args.no_augment, workers=args.workers,
                       tilt_max_deg=args.tilt_deg, tilt_share=args.tilt_share, margin_max=args.frame_margin_max,
-                      decal_share=args.decal_share,
+                      decal_share=args.decal_share, hue_share=args.hue_share,
                       limit_train=args.limit_train, limit_val=args.limit_val, input_mode=args.inputs,
                       init_from=args.init, objects_per_build=args.build_objects, keep_epochs=args.keep_epochs,
                       anchor_weight=args.anchor_weight,

@@ -6,7 +6,7 @@ weighted vote of the Gaussians' material ids, the targets their weighted mean no
 (log10 E, ν, log10 ρ). Augmentation acts on the Gaussians before normalisation: a random yaw
 rotation about +z, random x/y flips, per-axis scale jitter (covariances follow: Σ' = A Σ Aᵀ),
 colour jitter (per-channel gain and a brightness offset) and, when asked, a random tilt, a random
-grid margin (framing) and painted decals (`paint_decals`).
+grid margin (framing), painted decals (`paint_decals`) and a hue and saturation shift (`shift_hue`).
 """
 from __future__ import annotations
 
@@ -37,9 +37,14 @@ class AugmentConfig:
     # (0: none). Real objects carry labels, paint, prints and dirt; generated metal is plain, so r50 reads a
     # high-contrast metal helmet (benchmarks/real_holdout) as soft and the same helmet painted grey as metal.
     decal_share: float = 0.0
+    # Hue: this share of objects has its colours turned about the grey axis by up to ±180° and its saturation
+    # scaled by SATURATION_RANGE (0: none). r50 reads a photographed potted plant as wood and metal, and the
+    # same plant painted leaf green as soft: the generator's palettes are narrower than the world's.
+    hue_share: float = 0.0
 
 
 MAX_DECALS = 8
+SATURATION_RANGE = (0.3, 1.5)  # saturation scale of a hue-shifted object
 DECAL_RADIUS = (0.08, 0.3)  # radius range of one decal, as a share of the object's largest extent
 
 
@@ -99,6 +104,32 @@ def paint_decals(gen, means, rgb, share: float):
     return painted
 
 
+def turn_hue(rgb, angle_rad: float, saturation: float):
+    """rgb (M,3) turned about the grey axis (1,1,1) by `angle_rad` (the mean of the channels kept; 120° maps
+    red to green) and its distance from grey scaled by `saturation`, clamped to [0, 1]."""
+    import torch
+
+    eye = torch.eye(3, dtype=rgb.dtype, device=rgb.device)
+    k = torch.full((3,), 1 / math.sqrt(3), dtype=rgb.dtype, device=rgb.device)
+    cross = torch.tensor([[0.0, -1.0, 1.0], [1.0, 0.0, -1.0], [-1.0, 1.0, 0.0]], dtype=rgb.dtype,
+                         device=rgb.device) / math.sqrt(3)  # K with K v = k × v
+    turn = math.cos(angle_rad) * eye + math.sin(angle_rad) * cross + (1 - math.cos(angle_rad)) * torch.outer(k, k)
+    grey = rgb.mean(1, keepdim=True)
+    return (grey + saturation * ((rgb @ turn.T) - grey)).clamp(0.0, 1.0)
+
+
+def shift_hue(gen, rgb, share: float):
+    """rgb (M,3) in [0, 1], for a `share` of calls turned by one angle drawn in [−180°, 180°] with one
+    saturation factor drawn in SATURATION_RANGE (`turn_hue`). Always draws 3 numbers from `gen`."""
+    import torch
+
+    u = torch.rand(3, generator=gen)
+    if float(u[0]) >= share:
+        return rgb
+    saturation = SATURATION_RANGE[0] + (SATURATION_RANGE[1] - SATURATION_RANGE[0]) * float(u[2])
+    return turn_hue(rgb, math.pi * (2 * float(u[1]) - 1), saturation)
+
+
 def object_generator(epoch_seed: int, index: int):
     """The random draws that augment object `index` of the store in one epoch (`epoch_seed`): the same
     whichever process builds it, so training on N processes sees the same augmented objects as on one
@@ -133,6 +164,8 @@ def build_batch(store, ids: list[int], spec: FeatureSpec, augment: AugmentConfig
             margin += (augment.margin_max - spec.margin) * float(torch.rand(1, generator=gen))
         if augment is not None and augment.decal_share > 0:  # drawn after everything else: earlier draws unchanged
             rgb = paint_decals(gen, means, rgb, augment.decal_share)
+        if augment is not None and augment.hue_share > 0:  # drawn last of all
+            rgb = shift_hue(gen, rgb, augment.hue_share)
         mu, cv, al, ft, _, _ = prepare_gaussians(
             GaussianTensors(means, cov, o["alphas"], rgb, o["sh_energy"], o["extras"]), margin)
         labels = torch.cat([torch.nn.functional.one_hot(o["material_id"], NUM_CLASSES).float(), o["physical"]], 1)

@@ -44,6 +44,7 @@ class TrainConfig:
     tilt_share: float = AugmentConfig.tilt_share      # (degrees; AugmentConfig holds the defaults)
     margin_max: float = AugmentConfig.margin_max      # augmentation: each object's grid margin up to this
     decal_share: float = AugmentConfig.decal_share    # augmentation: share of objects with painted decals
+    hue_share: float = AugmentConfig.hue_share        # augmentation: share of objects with hue/saturation shifted
     workers: int = 1
     limit_train: int | None = None
     limit_val: int | None = None
@@ -235,7 +236,7 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
 
         model = DistributedDataParallel(net, device_ids=[torch.device(device).index] if use_cuda(device) else None)
     aug = (AugmentConfig(tilt_max_deg=cfg.tilt_max_deg, tilt_share=cfg.tilt_share, margin_max=cfg.margin_max,
-                         decal_share=cfg.decal_share)
+                         decal_share=cfg.decal_share, hue_share=cfg.hue_share)
            if cfg.augment else None)
     per_build = cfg.objects_per_build or default_objects_per_build(device, spec.resolution,
                                                                        len(names) + NUM_CLASSES + 3)
