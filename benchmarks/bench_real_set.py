@@ -133,7 +133,6 @@ def draw_picture(real: Path, result: dict, out_dir: Path, path: Path, per_row: i
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from plyfile import PlyData
 
     from pixie_gs.splat import read_splat
     from pixie_gs.viz import log_e_colors
@@ -146,7 +145,7 @@ def draw_picture(real: Path, result: dict, out_dir: Path, path: Path, per_row: i
     rng = np.random.default_rng(0)
     for k, entry in enumerate(entries):
         cloud = read_splat(out_dir / entry["file"])
-        E = np.asarray(PlyData.read(str(out_dir / entry["file"]))["vertex"].data["E"], float)
+        E = np.asarray(cloud.get("E"), float)
         up = np.asarray(entry["up"], float) / np.linalg.norm(entry["up"])
         side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 0.0, 1.0])
         side /= np.linalg.norm(side)
@@ -202,6 +201,20 @@ def score(real: Path, scorer: Path, files: dict[str, Path], checkpoint: Path, ou
             "confidence_auroc": auroc, "per_asset": assets}
 
 
+def print_check_table(results: list[dict], key: str, lead) -> None:
+    """One line per check of the shipped checkpoint's assets: `lead(check)` (10 characters), then per checkpoint
+    the check's `key` figure, marked ✗ where that checkpoint failed it ('-' where it has no such check)."""
+    base = results[0]
+    for name, asset in base["per_asset"].items():
+        for k, check in enumerate(asset["per_check"]):
+            cells = []
+            for r in results:
+                mine = r["per_asset"].get(name, {}).get("per_check", [])
+                cells.append(f"{mine[k].get(key, float('nan')):.3f}{'' if mine[k]['passed'] else '✗'}"
+                             if k < len(mine) else "-")
+            print(f"  {name[:-4] + ': ' + check['region']:52s} {lead(check):10s} " + "  ".join(f"{c:>7s}" for c in cells))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--checkpoint", action="append", default=[], help="candidate checkpoint (repeatable)")
@@ -249,23 +262,10 @@ def main() -> None:
         print(f"  {name:25s} {cells}")
     print("\nshare of each region's Gaussians that satisfies its check (need), per checkpoint; a pass by a few "
           "points is one small change away from a fail")
-    for name in names:
-        for k, check in enumerate(base["per_asset"][name]["per_check"]):
-            cells = []
-            for r in results:
-                mine = r["per_asset"].get(name, {}).get("per_check", [])
-                cells.append(f"{mine[k]['share']:.3f}{'' if mine[k]['passed'] else '✗'}" if k < len(mine) else "-")
-            print(f"  {name[:-4] + ': ' + check['region']:52s} need {check['need']:.2f}  " + "  ".join(f"{c:>7s}" for c in cells))
+    print_check_table(results, "share", lambda check: f"need {check['need']:.2f}")
     print("\nmean confidence annotate wrote in each check's box, per checkpoint (✗: the check failed); AUROC: how "
           "often a passed check is more confident than a failed one (0.5: confidence says nothing about failure)")
-    for name in names:
-        for k, check in enumerate(base["per_asset"][name]["per_check"]):
-            cells = []
-            for r in results:
-                mine = r["per_asset"].get(name, {}).get("per_check", [])
-                cells.append(f"{mine[k].get('confidence', float('nan')):.3f}{'' if mine[k]['passed'] else '✗'}"
-                             if k < len(mine) else "-")
-            print(f"  {name[:-4] + ': ' + check['region']:52s}            " + "  ".join(f"{c:>7s}" for c in cells))
+    print_check_table(results, "confidence", lambda check: "")
     print(f"  {'AUROC (passed vs failed checks)':52s}            " + "  ".join(
         f"{'-' if r['confidence_auroc'] is None else format(r['confidence_auroc'], '.3f'):>7s}" for r in results))
     for r in results:
