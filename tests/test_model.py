@@ -15,6 +15,7 @@ from pixie_gs.model.checkpoint import DEFAULT_CHECKPOINT, FeatureSpec, load_chec
 from pixie_gs.model.data import DeviceStore, record_from_cloud
 from pixie_gs.model.predict import grid_channel_names, select_inputs
 from pixie_gs.model.unet import MaterialUNet, ModelConfig, masked_loss
+from pixie_gs.model.soup import ingredient_validations
 from pixie_gs.splat import SplatCloud
 
 SPEC = FeatureSpec(resolution=16)
@@ -265,9 +266,8 @@ def test_shipped_checkpoint_is_small_and_loads_weights_only():
     assert os.path.getsize(DEFAULT_CHECKPOINT) <= 20 * 2 ** 20
     loaded = load_checkpoint()
     assert loaded.features.resolution == 64
-    # a trained checkpoint records its validation; a soup records each of its ingredients'
-    vals = [s["val_voxel"]["accuracy"] for s in loaded.meta["soup_of"]] if "soup_of" in loaded.meta \
-        else [loaded.meta["val"]["voxel"]["accuracy"]]
+    # a trained checkpoint records its validation; a soup records each of its ingredients' (soups of soups too)
+    vals = [v["accuracy"] for v in ingredient_validations(loaded.meta)]
     assert vals and min(vals) > 0.95
     assert set(loaded.meta["label_ranges"]) == {"log10_E_pa", "nu", "log10_density_kg_m3"}
 

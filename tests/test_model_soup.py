@@ -8,7 +8,7 @@ import torch
 from pixie_gs.errors import InputError
 from pixie_gs.model.checkpoint import FeatureSpec, load_checkpoint, save_checkpoint
 from pixie_gs.model.predict import grid_channel_names
-from pixie_gs.model.soup import main, make_soup, union_ranges
+from pixie_gs.model.soup import ingredient_validations, main, make_soup, union_ranges
 from pixie_gs.model.unet import MaterialUNet, ModelConfig
 
 NAMES = grid_channel_names(())
@@ -38,6 +38,19 @@ def test_soup_weights_are_the_mean_and_the_network_runs(tmp_path):
     with torch.no_grad():
         logits, phys = soup.model(x)
     assert torch.isfinite(logits).all() and torch.isfinite(phys).all()
+
+
+def test_a_soup_of_soups_keeps_every_trained_ingredients_validation(tmp_path):
+    val = lambda acc: {"val": {"voxel": {"accuracy": acc, "mse_avg": 0.05}}, "best_epoch": 1}  # noqa: E731
+    for name, seed, acc in (("a", 1, 0.97), ("b", 2, 0.98), ("c", 3, 0.99)):
+        _checkpoint(tmp_path / f"{name}.pt", seed, meta=val(acc))
+    make_soup([tmp_path / "a.pt", tmp_path / "b.pt"], tmp_path / "ab.pt")
+    meta = make_soup([tmp_path / "ab.pt", tmp_path / "c.pt"], tmp_path / "abc.pt")
+    inner = meta["soup_of"][0]
+    assert inner["file"] == "ab.pt" and inner["val_voxel"] is None  # a soup has no validation of its own …
+    assert [s["file"] for s in inner["soup_of"]] == ["a.pt", "b.pt"]  # … but keeps its ingredients'
+    assert [v["accuracy"] for v in ingredient_validations(meta)] == [0.97, 0.98, 0.99]
+    assert ingredient_validations(load_checkpoint(tmp_path / "c.pt").meta) == [{"accuracy": 0.99, "mse_avg": 0.05}]
 
 
 def test_soup_of_copies_predicts_like_the_original(tmp_path):

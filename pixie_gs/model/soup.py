@@ -9,7 +9,7 @@ no cost at inference. pixie-gs uses it to combine the snapshots of its retrainin
 
 The inputs must share the network config, the feature spec and the normalisation ranges (else an
 InputError names the first difference). The soup's meta records every input (file name, SHA-256, best
-epoch, validation figures), the union of their label ranges (every prediction is clamped to them) and the
+epoch, validation figures; for an input that is itself a soup, its own ingredients), the union of their label ranges (every prediction is clamped to them) and the
 grid statistics (out-of-distribution score) of input K (default: the last one, the newest training data).
 """
 from __future__ import annotations
@@ -33,6 +33,30 @@ def union_ranges(ranges: list[dict]) -> dict:
     """Per quantity, the lowest low and the highest high of several `label_ranges` dicts."""
     keys = set.intersection(*(set(r) for r in ranges)) if ranges else set()
     return {k: [min(r[k][0] for r in ranges), max(r[k][1] for r in ranges)] for k in sorted(keys)}
+
+
+def _ingredient(path: Path, meta: dict) -> dict:
+    """One input's record in `soup_of`: its file, hash, best epoch and validation, and, when it is itself
+    a soup (no validation of its own), its ingredients' records."""
+    record = {"file": path.name, "sha256": _sha256(path), "best_epoch": meta.get("best_epoch"),
+              "val_voxel": {k: meta["val"]["voxel"][k] for k in ("accuracy", "mse_avg")} if "val" in meta else None}
+    if "soup_of" in meta:
+        record["soup_of"] = meta["soup_of"]
+    return record
+
+
+def ingredient_validations(meta: dict) -> list[dict]:
+    """The validation figures ({accuracy, mse_avg}) of every trained checkpoint a checkpoint is made of:
+    its own for a trained one, those of the leaves of a soup (soups of soups included)."""
+    if "soup_of" not in meta:
+        return [{k: meta["val"]["voxel"][k] for k in ("accuracy", "mse_avg")}] if "val" in meta else []
+    found = []
+    for record in meta["soup_of"]:
+        if record.get("val_voxel") is not None:
+            found.append(record["val_voxel"])
+        elif "soup_of" in record:
+            found += ingredient_validations(record)
+    return found
 
 
 def make_soup(inputs: list[str | Path], out: str | Path, stats_from: int = -1) -> dict:
@@ -67,9 +91,7 @@ def make_soup(inputs: list[str | Path], out: str | Path, stats_from: int = -1) -
             state[name] = tensor
     metas = [pl.get("meta", {}) for pl in payloads]
     meta = {
-        "soup_of": [{"file": p.name, "sha256": _sha256(p), "best_epoch": m.get("best_epoch"),
-                     "val_voxel": {k: m["val"]["voxel"][k] for k in ("accuracy", "mse_avg")} if "val" in m else None}
-                    for p, m in zip(paths, metas)],
+        "soup_of": [_ingredient(p, m) for p, m in zip(paths, metas)],
         "feature_stats_from": paths[stats_from].name,
     }
     ranges = [m["label_ranges"] for m in metas if "label_ranges" in m]
