@@ -84,6 +84,10 @@ def test_full_scene_parses_every_key(tmp_path):
     ({"part_overrides": {"leaf": {"E_scale": 2}}}, "key 'part_overrides.leaf'"),
     ({"part_overrides": {"1": {"E_scal": 2}}}, "key 'part_overrides.1.E_scal'"),
     ({"solver": {"cfl": 2.0}}, "key 'solver.cfl': must be ≤ 1"),
+    # a subnormal side passed "> 0" and made the grid spacing 0 (divide by zero in grid_dims)
+    ({"domain": {"size_m": 5e-324}}, "key 'domain.size_m': must be ≥ 0.001"),
+    ({"domain": {"size_m": [1.0, 1.0, 1e-9]}}, "key 'domain.size_m': every side must be ≥ 0.001 m"),
+    ({"object": {"size_m": 1e-300}}, "key 'object.size_m': must be ≥ 0.001"),
 ])
 def test_bad_keys_and_values_name_the_file_and_key(tmp_path, data, message):
     path = write(tmp_path, data)

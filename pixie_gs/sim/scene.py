@@ -26,6 +26,7 @@ STIFF_PART_MODES = ("auto", "rigid", "soften", "true")  # solver.stiff_parts (si
 MAX_SCENE_BYTES = 10_000_000  # a scene file is a few kB; refuse anything absurd before parsing
 MAX_MAGNITUDE = 1e12  # any number of a scene (m, s, m/s, Pa, …): beyond, float32 physics is meaningless
 MAX_SIZE_M = 1e4  # domain and object sides (m)
+MIN_SIZE_M = 1e-3  # domain and object sides (m): below a millimetre the grid spacing loses meaning (a 5e-324 m side made it 0)
 MAX_GRID = 4096  # grid cells along the longest side
 GRID_BYTES_PER_NODE = 32  # solver arrays per grid node: mass, momentum, fixed, velocity (float32)
 
@@ -370,16 +371,16 @@ class _SceneParser:
         if up not in UP_AXES:
             raise self.fail("up", f"must be one of {', '.join(UP_AXES)}, got {_show(up)}")
         o = self.table(d.get("object", {}), "object", ("size_m", "position"))
-        placement = ObjectPlacement(self.number(o, "size_m", "object", 0.5, lo=0.0, lo_open=True, hi=MAX_SIZE_M),
+        placement = ObjectPlacement(self.number(o, "size_m", "object", 0.5, lo=MIN_SIZE_M, hi=MAX_SIZE_M),
                                     self.vec3(o.get("position", [0, 0, 0]), "object.position"))
         dm = self.table(d.get("domain", {}), "domain", ("size_m", "grid", "origin"))
         size = dm.get("size_m", 1.0)
         if isinstance(size, list):
             size = self.vec3(size, "domain.size_m")
-            if min(size) <= 0 or max(size) > MAX_SIZE_M:
-                raise self.fail("domain.size_m", f"every side must be > 0 m and ≤ {MAX_SIZE_M:g} m")
+            if min(size) < MIN_SIZE_M or max(size) > MAX_SIZE_M:
+                raise self.fail("domain.size_m", f"every side must be ≥ {MIN_SIZE_M:g} m and ≤ {MAX_SIZE_M:g} m")
         else:
-            size = self.number(dm, "size_m", "domain", 1.0, lo=0.0, lo_open=True, hi=MAX_SIZE_M)
+            size = self.number(dm, "size_m", "domain", 1.0, lo=MIN_SIZE_M, hi=MAX_SIZE_M)
         origin = dm.get("origin")
         domain = Domain(size, self.integer(dm, "grid", "domain", 64, lo=8, hi=MAX_GRID),
                         None if origin is None else self.vec3(origin, "domain.origin"))
