@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pixie_gs.model.metrics import separation_auroc
+
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = ROOT / "pixie_gs" / "data" / "checkpoints" / "pixie_default.pt"
 CLI = [sys.executable, "-m", "pixie_gs.cli.main"]
@@ -99,13 +101,13 @@ def object_box_crops(real: Path, scale: float = 1.0) -> dict[str, list[str]]:
 def region_confidence(real: Path, out_dir: Path) -> dict[str, list[float]]:
     """Expectations file name → per check, the mean `confidence` annotate wrote for the Gaussians inside the
     check's box (inclusive, as score.py selects them; NaN for an empty box)."""
-    from plyfile import PlyData
+    from pixie_gs.splat import read_splat
 
     out = {}
     for entry in expectation_entries(real):
-        v = PlyData.read(str(out_dir / entry["file"]))["vertex"].data
-        xyz = np.stack([v["x"], v["y"], v["z"]], 1).astype(float)
-        conf = np.asarray(v["confidence"], float)
+        cloud = read_splat(out_dir / entry["file"])
+        xyz = np.asarray(cloud.means, float)
+        conf = np.asarray(cloud.get("confidence"), float)
         means = []
         for region in entry["regions"]:
             lo, hi = (np.asarray(c, float) for c in region["box"])
@@ -122,7 +124,7 @@ def pass_fail_auroc(passed: list[bool], confidence: list[float]) -> float | None
     bad = [c for p, c in zip(passed, confidence) if not p]
     if not good or not bad:
         return None
-    return float(np.mean([(g > b) + 0.5 * (g == b) for g in good for b in bad]))
+    return separation_auroc(good, bad)
 
 
 def draw_picture(real: Path, result: dict, out_dir: Path, path: Path, per_row: int = 4) -> None:

@@ -14,6 +14,7 @@ from pixie_gs.dataset.assemble import build_object
 from pixie_gs.dataset.generate import object_seed
 from pixie_gs.dataset.labels import load_class_table
 from pixie_gs.model.checkpoint import load_checkpoint
+from pixie_gs.model.metrics import separation_auroc
 from pixie_gs.model.predict import predict_materials
 from pixie_gs.model.stats import PAPER_CLASSES
 from pixie_gs.splat import SplatCloud
@@ -48,7 +49,7 @@ def test_confidence_separates_training_classes_from_out_of_vocabulary():
     inside = [mean_confidence(build_object(table[name], object_seed(99, "test", i), N, realistic=i % 2 == 0)[0])
               for i, name in enumerate(table)]  # every class; capture-like and clean in turn
     outside = [mean_confidence(c) for c in _out_of_vocabulary(np.random.default_rng(1))]
-    auroc = np.mean([(a > b) + 0.5 * (a == b) for a in inside for b in outside])
+    auroc = separation_auroc(inside, outside)
     print(f"AUROC {auroc:.3f}")
     assert auroc >= 0.8, (auroc, inside, outside)
     assert np.median(inside) > 0.8 and min(outside) < 0.1
@@ -107,3 +108,11 @@ def test_a_dense_converted_mesh_is_not_called_a_guess():
     classes = np.bincount(g.classes[g.occupancy], minlength=7)
     assert classes.argmax() == 1, classes  # metal
     assert g.in_distribution > 0.9, g.in_distribution
+
+
+def test_separation_auroc_known_answers():
+    # pairs (3,1) (3,2) (2,1) win, (2,2) ties: (1 + 1 + 1 + 0.5) / 4
+    assert separation_auroc([3.0, 2.0], [1.0, 2.0]) == 0.875
+    assert separation_auroc([5.0, 6.0], [1.0, 2.0]) == 1.0 and separation_auroc([1.0], [5.0, 6.0]) == 0.0
+    assert separation_auroc([float("nan")], [1.0]) == 0.0  # a NaN never counts as separating
+

@@ -12,6 +12,13 @@ from ..materials import MATERIAL_NAMES, NUM_CLASSES
 PHYSICAL_NAMES = ("log_E", "nu", "log_rho")
 
 
+def separation_auroc(higher, lower) -> float:
+    """Probability that a value drawn from `higher` exceeds one drawn from `lower` (ties count ½): the area
+    under the ROC curve of telling the two groups apart by the value (0.5: not at all). A NaN compares as
+    neither greater nor equal, so it counts as a loss."""
+    return float(np.mean([(a > b) + 0.5 * (a == b) for a in higher for b in lower]))
+
+
 class _Sums:
     def __init__(self) -> None:
         self.count = 0

@@ -9,8 +9,9 @@ no cost at inference. pixie-gs uses it to combine the snapshots of its retrainin
 
 The inputs must share the network config, the feature spec and the normalisation ranges (else an
 InputError names the first difference). The soup's meta records every input (file name, SHA-256, best
-epoch, validation figures; for an input that is itself a soup, its own ingredients), the union of their label ranges (every prediction is clamped to them) and the
-grid statistics (out-of-distribution score) of input K (default: the last one, the newest training data).
+epoch, validation figures; for an input that is itself a soup, its own ingredients), the union of their
+label ranges (every prediction is clamped to them) and the grid statistics (out-of-distribution score) of
+input K (default: the last one, the newest training data).
 """
 from __future__ import annotations
 
@@ -35,11 +36,16 @@ def union_ranges(ranges: list[dict]) -> dict:
     return {k: [min(r[k][0] for r in ranges), max(r[k][1] for r in ranges)] for k in sorted(keys)}
 
 
+def _validation(meta: dict) -> dict | None:
+    """A trained checkpoint's voxel validation figures {accuracy, mse_avg}; None for one without (a soup)."""
+    return {k: meta["val"]["voxel"][k] for k in ("accuracy", "mse_avg")} if "val" in meta else None
+
+
 def _ingredient(path: Path, meta: dict) -> dict:
     """One input's record in `soup_of`: its file, hash, best epoch and validation, and, when it is itself
     a soup (no validation of its own), its ingredients' records."""
     record = {"file": path.name, "sha256": _sha256(path), "best_epoch": meta.get("best_epoch"),
-              "val_voxel": {k: meta["val"]["voxel"][k] for k in ("accuracy", "mse_avg")} if "val" in meta else None}
+              "val_voxel": _validation(meta)}
     if "soup_of" in meta:
         record["soup_of"] = meta["soup_of"]
     return record
@@ -49,7 +55,8 @@ def ingredient_validations(meta: dict) -> list[dict]:
     """The validation figures ({accuracy, mse_avg}) of every trained checkpoint a checkpoint is made of:
     its own for a trained one, those of the leaves of a soup (soups of soups included)."""
     if "soup_of" not in meta:
-        return [{k: meta["val"]["voxel"][k] for k in ("accuracy", "mse_avg")}] if "val" in meta else []
+        own = _validation(meta)
+        return [] if own is None else [own]
     found = []
     for record in meta["soup_of"]:
         if record.get("val_voxel") is not None:
