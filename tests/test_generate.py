@@ -24,7 +24,7 @@ PAPER_CLASSES = ["tree", "flowers", "shrubs", "grass", "rubber_ducks_toys", "spo
                  "metal_crates", "sand", "snow_mud"]
 EVERYDAY_CLASSES = ["wooden_tables", "wooden_chairs", "guitars", "picture_frames", "ceramic_vases", "mugs",
                     "glass_bottles", "plastic_bottles", "metal_bottles", "plastic_toys", "cushions", "stones", "bread",
-                    "fruit", "cardboard_boxes", "books"]
+                    "fruit", "cardboard_boxes", "books", "metal_tools", "cloth", "long_produce"]
 ALL_CLASSES = PAPER_CLASSES + EVERYDAY_CLASSES
 SMALL = ["--gaussians", "1500", "--quiet"]
 
@@ -35,9 +35,9 @@ def files_of(directory: Path) -> dict[str, bytes]:
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory) -> Path:
-    """One object of every class (26), small, written through the CLI in this process."""
+    """One object of every class (29), small, written through the CLI in this process."""
     out = tmp_path_factory.mktemp("gen") / "data"
-    assert main(["generate", str(out), "--count", "26", "--seed", "7", *SMALL,
+    assert main(["generate", str(out), "--count", str(len(ALL_CLASSES)), "--seed", "7", *SMALL,
                  "--preview", str(out.parent / "preview.png")]) == 0
     return out
 
@@ -62,7 +62,7 @@ def test_table_has_the_paper_classes_with_paper_values():
 
 def test_every_object_inside_its_ranges_and_constraints(dataset):
     paths = list_objects(dataset, "train")
-    assert len(paths) == 26
+    assert len(paths) == len(ALL_CLASSES)
     seen = []
     for path in paths:
         cloud, meta = load_object(path)
@@ -93,18 +93,21 @@ def test_every_object_inside_its_ranges_and_constraints(dataset):
 
 def test_index_file_and_preview(dataset):
     index = json.loads((dataset / "train" / "index.json").read_text())
-    assert index["count"] == 26 and index["split"] == "train" and index["seed"] == 7
+    assert index["count"] == len(ALL_CLASSES) and index["split"] == "train" and index["seed"] == 7
     assert index["class_counts"] == {c: 1 for c in ALL_CLASSES}
-    assert [o["index"] for o in index["objects"]] == list(range(26))
-    assert [o["seed"] for o in index["objects"]] == [object_seed(7, "train", i) for i in range(26)]
+    assert [o["index"] for o in index["objects"]] == list(range(len(ALL_CLASSES)))
+    assert [o["seed"] for o in index["objects"]] == [object_seed(7, "train", i) for i in range(len(ALL_CLASSES))]
     from PIL import Image
 
     sheet = np.asarray(Image.open(dataset.parent / "preview.png").convert("RGB"))
     # one object per class (two per class would be picked, there is one), each as (rgb, material):
-    # 52 cells of 200×(200 + 16 label) px, 4 per row
-    assert sheet.shape[1] == 4 * 200 and sheet.shape[0] == 13 * (200 + 16)
-    cells = sheet.reshape(13, 216, 4, 200, 3)[:, 16:]
-    assert ((cells < 250).any(axis=-1).mean(axis=(1, 3)) > 0.02).all()  # every cell shows an object
+    # 2 × 29 = 58 cells of 200×(200 + 16 label) px, 4 per row (15 rows, the last half full)
+    cells_used = 2 * len(ALL_CLASSES)
+    rows = -(-cells_used // 4)
+    assert sheet.shape[1] == 4 * 200 and sheet.shape[0] == rows * (200 + 16)
+    cells = sheet.reshape(rows, 216, 4, 200, 3)[:, 16:].transpose(0, 2, 1, 3, 4).reshape(rows * 4, 200, 200, 3)
+    shows = (cells < 250).any(axis=-1).mean(axis=(1, 2)) > 0.02
+    assert shows[:cells_used].all() and not shows[cells_used:].any()  # every used cell shows an object
 
 
 def test_shells_are_hollow_and_piles_are_filled(dataset):
@@ -314,6 +317,8 @@ TEXTBOOK = {  # part: (E Pa, density kg/m³) ranges from handbooks (wood along g
     ("rubber_ducks_toys", "toy"): ((1e6, 1e7), (850, 1350)),
     ("cushions", "fabric"): ((1e4, 1e5), (20, 250)),
     ("stones", "stone"): ((1e10, 7e10), (2200, 3000)),
+    ("metal_tools", "steel"): ((5e10, 2.1e11), (7000, 8000)),  # steel ~2e11 Pa, 7,850 kg/m³; capped by the public range
+    ("long_produce", "flesh"): ((1e5, 1e7), (800, 1150)),  # banana, cucumber, carrot flesh
 }
 
 
@@ -342,7 +347,7 @@ def test_generated_objects_look_like_captures(dataset):
     """Capture statistics measured on the real captures (docs/real_vs_generated.md): opacity spread
     0.01–0.98 with median ≈ 0.3, log10 anisotropy median ≈ 1.2, floaters; here pooled over one object
     per class. Opacity is pooled over the objects drawn in "capture" opacity mode (the others keep one
-    high opacity: their number, Binomial(26, 0.2), would move a pooled median by ±0.15 from seed to
+    high opacity: their number, Binomial(29, 0.2), would move a pooled median by ±0.15 from seed to
     seed). The clean converter output (realistic=False) has one opacity per object."""
     from pixie_gs.dataset.assemble import build_object
 
@@ -382,7 +387,7 @@ def resting_on_support(points: np.ndarray, sink: float = 0.02) -> bool:
         return False
 
 
-@pytest.mark.parametrize("name", ["shrubs", "cushions", "fruit"])
+@pytest.mark.parametrize("name", ["shrubs", "cushions", "fruit", "metal_tools", "cloth", "long_produce"])
 def test_free_standing_classes_rest_on_their_own_support(name):
     """A shrub has no fixed part, a cushion no wall to lean on, a pile of fruit nothing but the
     ground: each generated one stands with its centre of mass above its own support. Before the
@@ -516,3 +521,30 @@ def test_house_plants_carry_foliage_down_to_the_pot():
             break
     assert len(gaps[True]) >= 3 and len(gaps[False]) >= 3, gaps
     assert max(gaps[True]) < 0.15 < 0.18 < min(gaps[False]), gaps
+
+
+def test_tools_lie_flat_with_steel_and_curtains_are_thin_standing_sheets():
+    """The stop-37 kinds have the shapes their recipes promise: every tool lies flat (height under a
+    quarter of its length) and carries steel labelled metal at 7,000-7,430 kg/m³; a curtain is an open
+    sheet standing at least 1 m high and thinner than a tenth of its height across its pleats; long
+    produce lies along the ground (longest side at least twice its height)."""
+    from pixie_gs.dataset.assemble import build_object
+
+    for i in range(12):
+        seed = object_seed(0, "train", 29 * i)
+        cloud, record = build_object(TABLE["metal_tools"], seed, 2000, realistic=False)
+        p = cloud.means.astype(np.float64)
+        horizontal = np.ptp(p[:, :2] @ np.linalg.svd(p[:, :2] - p[:, :2].mean(0))[2].T, axis=0)
+        assert np.ptp(p[:, 2]) < 0.25 * horizontal.max(), record["shape"]
+        material_id, _, _, rho = cloud.get_materials()
+        steel = material_id == METAL
+        assert steel.any() and np.all((rho[steel] >= 7000) & (rho[steel] <= 7430))
+        cloud, record = build_object(TABLE["cloth"], seed, 2000, realistic=False)
+        if record["shape"]["kind"] == "curtain":
+            p = cloud.means.astype(np.float64)
+            across = np.ptp(p[:, :2] @ np.linalg.svd(p[:, :2] - p[:, :2].mean(0))[2].T, axis=0)
+            height = np.ptp(p[:, 2])
+            assert height >= 1.0 * record["scale"] - 1e-6 and across.min() < 0.1 * height, record["shape"]
+        cloud, record = build_object(TABLE["long_produce"], seed, 2000, realistic=False)
+        p = cloud.means.astype(np.float64)
+        assert np.ptp(p[:, :2], axis=0).max() >= 2 * np.ptp(p[:, 2]), record["shape"]
