@@ -357,6 +357,14 @@ def test_train_resume_and_evaluate_cli_on_a_generated_dataset(tmp_path, capsys):
     history = json.loads(state["history_json"])
     assert [h["epoch"] for h in history] == [1, 2] and history[0] == first[0]
     assert state["step"] == 4  # 2 batches per epoch, 2 epochs
+    # a resume whose time budget the run already spent says so in one line instead of ending without an epoch
+    capsys.readouterr()
+    spent = max(1, int(state["elapsed_s"]))
+    assert main(["train", str(data), "--out", str(ckpt), "--epochs", "3", "--resume", "--time-budget-s", str(spent),
+                 *common]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "m.pt.state.pt" in err[0] and "already spent" in err[0], err
+    assert torch.load(str(ckpt) + ".state.pt", weights_only=True)["step"] == 4  # untouched
     capsys.readouterr()
     report = tmp_path / "metrics.json"
     assert main(["evaluate", str(ckpt), str(data), "--split", "test", "--device", "cpu", "--json", str(report), "-q"]) == 0

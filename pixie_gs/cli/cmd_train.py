@@ -22,7 +22,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--out", required=True, metavar="CKPT", help="checkpoint file to write (.pt)")
     p.add_argument("--epochs", type=int, default=30, help="passes over the train split (default 30)")
     p.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help=DEVICE_HELP)
-    p.add_argument("--time-budget-s", type=float, default=None, help="stop (and anneal the LR) within this wall time")
+    p.add_argument("--time-budget-s", type=float, default=None, help="stop (and anneal the LR) within this wall time, s; with --resume it counts the time trained before")
     p.add_argument("--resume", action="store_true", help="continue from CKPT.state.pt")
     p.add_argument("--init", default=None, metavar="CKPT0", help="start from this checkpoint's weights (fine-tuning)")
     p.add_argument("--batch-size", type=int, default=8,

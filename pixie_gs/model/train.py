@@ -190,6 +190,10 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         if not side.exists():
             raise InputError("nothing to resume (no training state next to the checkpoint)", side)
         state = load_training_state(side)
+        trained_s = float(state["elapsed_s"])
+        if cfg.time_budget_s and trained_s + 1.0 >= cfg.time_budget_s:
+            raise InputError(f"--time-budget-s {cfg.time_budget_s:.0f} is already spent: the budget counts the "
+                             f"{trained_s:.0f} s trained before this resume; give more to train on", side)
     t0 = time.perf_counter()
     torch.manual_seed(cfg.seed)
     stage(f"loading training data from {data_dir}")
