@@ -530,21 +530,24 @@ def test_tools_lie_flat_with_steel_and_curtains_are_thin_standing_sheets():
     produce lies along the ground (longest side at least twice its height)."""
     from pixie_gs.dataset.assemble import build_object
 
+    def horizontal_extents(p: np.ndarray) -> np.ndarray:
+        """Extents (m) of the points' ground projection along its principal axes (largest first)."""
+        xy = p[:, :2] - p[:, :2].mean(0)
+        return np.ptp(xy @ np.linalg.svd(xy)[2].T, axis=0)
+
     for i in range(12):
         seed = object_seed(0, "train", 29 * i)
         cloud, record = build_object(TABLE["metal_tools"], seed, 2000, realistic=False)
         p = cloud.means.astype(np.float64)
-        horizontal = np.ptp(p[:, :2] @ np.linalg.svd(p[:, :2] - p[:, :2].mean(0))[2].T, axis=0)
-        assert np.ptp(p[:, 2]) < 0.25 * horizontal.max(), record["shape"]
+        assert np.ptp(p[:, 2]) < 0.25 * horizontal_extents(p).max(), record["shape"]
         material_id, _, _, rho = cloud.get_materials()
         steel = material_id == METAL
         assert steel.any() and np.all((rho[steel] >= 7000) & (rho[steel] <= 7430))
         cloud, record = build_object(TABLE["cloth"], seed, 2000, realistic=False)
         if record["shape"]["kind"] == "curtain":
             p = cloud.means.astype(np.float64)
-            across = np.ptp(p[:, :2] @ np.linalg.svd(p[:, :2] - p[:, :2].mean(0))[2].T, axis=0)
             height = np.ptp(p[:, 2])
-            assert height >= 1.0 * record["scale"] - 1e-6 and across.min() < 0.1 * height, record["shape"]
+            assert height >= 1.0 * record["scale"] - 1e-6 and horizontal_extents(p).min() < 0.1 * height, record["shape"]
         cloud, record = build_object(TABLE["long_produce"], seed, 2000, realistic=False)
         p = cloud.means.astype(np.float64)
         assert np.ptp(p[:, :2], axis=0).max() >= 2 * np.ptp(p[:, 2]), record["shape"]

@@ -115,4 +115,3 @@ def test_separation_auroc_known_answers():
     assert separation_auroc([3.0, 2.0], [1.0, 2.0]) == 0.875
     assert separation_auroc([5.0, 6.0], [1.0, 2.0]) == 1.0 and separation_auroc([1.0], [5.0, 6.0]) == 0.0
     assert separation_auroc([float("nan")], [1.0]) == 0.0  # a NaN never counts as separating
-

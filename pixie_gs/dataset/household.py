@@ -462,13 +462,13 @@ def cloth(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
             sheets.append(s)
         return [Piece("fabric", concatenate(sheets), colour, 0.06)], _round(
             {"kind": "curtain", "width_m": w, "height_m": h, "panels": panels})
-    ext = np.array([rng.uniform(0.25, 0.7), rng.uniform(0.2, 0.5), 0.0])
+    length, width = rng.uniform(0.25, 0.7), rng.uniform(0.2, 0.5)
     layers = int(rng.integers(2, 6))
     t = rng.uniform(0.004, 0.02)
-    slabs = [box(np.array([ext[0] * rng.uniform(0.97, 1.0), ext[1] * rng.uniform(0.97, 1.0), t]),
+    slabs = [box(np.array([length * rng.uniform(0.97, 1.0), width * rng.uniform(0.97, 1.0), t]),
                  np.array([rng.uniform(-0.005, 0.005), rng.uniform(-0.005, 0.005), (k + 0.5) * t])) for k in range(layers)]
     return [Piece("fabric", concatenate(slabs), colour, 0.06, fill=True)], _round(
-        {"kind": "folded", "size_m": [float(ext[0]), float(ext[1]), layers * t], "layers": layers})
+        {"kind": "folded", "size_m": [length, width, layers * t], "layers": layers})
 
 
 def _bent_tube(length: float, radius: float, bend: float, taper: float, segments: int = 10) -> trimesh.Trimesh:
