@@ -11,9 +11,7 @@ set -euo pipefail
 OUT=${1:?usage: r3_fetch.sh OUT_DIR [MIRROR_ROOT]}
 M=${2:-/work/.mirror}
 mkdir -p "$OUT"
-gd() { local d="$M/$1/repo"; [ -d "$d/.git" ] && d="$d/.git"; echo "$d"; }
-# show REPO COMMIT PATH DEST
-show() { mkdir -p "$(dirname "$4")"; git --git-dir="$(gd "$1")" show "$2:$3" > "$4"; }
+source "$(dirname "$0")/../mirror_files.sh"   # show REPO COMMIT PATH DEST
 
 RL=RobotLocomotion+models;           RLC=4723170e1c8ee8bc59c342bb5c491ab8f263f1fb
 KH=sbtron+glTF-Sample-Models;        KHC=5bdbcd0b7dced77c7dbb0e5772426bb23f937c1e
