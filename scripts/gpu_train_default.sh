@@ -5,6 +5,9 @@
 # occupancy-only inputs, shorter budgets); evaluate all three on the same held-out test split.
 # Sizes come from the environment so the same script smoke-tests on a CPU at tiny size:
 #   TRAIN_TIERS='10:2000 10:5000' VAL_TIERS='6:3000' TEST_TIERS='5:2000 5:6000' NABL=10 DEVICE=cpu TOTAL_S=400 WORKERS=2 OUT=/tmp/o scripts/gpu_train_default.sh
+# and data-parallel over two CPU processes (gloo), as NPROC=2 runs it over two GPUs:
+#   NPROC=2 ABLATIONS=0 TRAIN_TIERS='12:2000' VAL_TIERS='6:2000' TEST_TIERS='4:2000' DEVICE=cpu TOTAL_S=300 WORKERS=1 \
+#     EXTRA_TRAIN_ARGS='--resolution 32 --base-channels 8' OUT=/tmp/o scripts/gpu_train_default.sh
 set -u -o pipefail
 START=$(date +%s)
 OUT=${OUT:?set OUT to the output folder}
@@ -17,6 +20,11 @@ LOAD_S=${LOAD_S:-90}               # time allowed for reading the dataset before
 RESERVE_S=${RESERVE_S:-165}        # kept back from TOTAL_S for loading and the test evaluation
 export PYTHONUNBUFFERED=1 OMP_NUM_THREADS=${OMP_NUM_THREADS:-4}
 P="python3 -m pixie_gs.cli.main"
+# NPROC > 1 trains the full model data-parallel with torchrun over that many GPUs (DDP; --batch-size stays the
+# global batch, split over the processes; docs/training.md, "Several GPUs"); generation and evaluation stay single
+NPROC=${NPROC:-1}
+TRAIN_P=$P
+[ "$NPROC" -gt 1 ] && TRAIN_P="python3 -m torch.distributed.run --standalone --nproc_per_node $NPROC -m pixie_gs.cli.main"
 LOG=$OUT/log.txt
 elapsed() { echo $(( $(date +%s) - START )); }
 say() { echo "[$(elapsed) s] $*" | tee -a "$LOG"; }
@@ -62,8 +70,9 @@ ABL_BUDGET=$(( FULL_BUDGET * 45 / 100 ))
 say "training: full budget ${FULL_BUDGET} s, ablations ${ABL_BUDGET} s each"
 train() {  # name inputs budget extra-args...
   local name=$1 inputs=$2 budget=$3; shift 3
-  timeout $(( budget + LOAD_S )) $P train "$DATA" --out "$OUT/$name.pt" --device $DEVICE --epochs 200 \
-    --time-budget-s $budget --inputs $inputs --workers $WORKERS --log "$OUT/train_$name.json" -q "$@" $EXTRA_TRAIN_ARGS \
+  local launcher=$P; [ "$name" = pixie_default ] && launcher=$TRAIN_P
+  timeout $(( budget + LOAD_S )) $launcher train "$DATA" --out "$OUT/$name.pt" --device $DEVICE --epochs 200 \
+    --time-budget-s $budget --inputs $inputs --workers $WORKERS --log-json "$OUT/train_$name.json" -q "$@" $EXTRA_TRAIN_ARGS \
     >>"$LOG" 2>&1 && say "trained $name" || say "train $name failed"
   timeout 120 $P evaluate "$OUT/$name.pt" "$DATA" --split test --device $DEVICE --workers $WORKERS -q \
     --json "$OUT/eval_$name.json" >"$OUT/eval_$name.txt" 2>&1 && say "evaluated $name" || say "evaluate $name failed"
