@@ -40,7 +40,8 @@ elif [ "$mode" != watch ]; then
 elif [ ! -f "$RUN/pid" ]; then
   # a fresh machine (the last one was given back between calls): the run is gone, not finished
   echo "no run in $RUN on this machine: it was lost between calls; resume it from the last copy in \$OUT"
-  echo "(copy CKPT and CKPT.state.pt into $RUN, add --resume to EXTRA_TRAIN_ARGS, call start again)"
+  echo "(copy CKPT and CKPT.state.pt into $RUN, add --resume to EXTRA_TRAIN_ARGS, call start again with TOTAL_S"
+  echo " the time of that call: the time trained before is added to the run's budget)"
   exit 3
 fi
 

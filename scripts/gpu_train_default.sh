@@ -68,11 +68,19 @@ ABL_BUDGET=$(( FULL_BUDGET * 45 / 100 ))
 [ "$ABLATIONS" = 0 ] && ABL_BUDGET=0
 [ $FULL_BUDGET -lt 30 ] && { say "no time left to train ($FULL_BUDGET s)"; exit 1; }
 say "training: full budget ${FULL_BUDGET} s, ablations ${ABL_BUDGET} s each"
+# A resumed run (--resume in EXTRA_TRAIN_ARGS, CKPT.state.pt copied into $OUT) counts the seconds trained before
+# in its --time-budget-s; add them, so TOTAL_S stays this call's time whatever was trained before.
+PRIOR_S=0
+if [[ " $EXTRA_TRAIN_ARGS " == *" --resume "* ]] && [ -f "$OUT/pixie_default.pt.state.pt" ]; then
+  PRIOR_S=$(python3 -c "import sys, torch; print(int(float(torch.load(sys.argv[1], map_location='cpu', weights_only=True)['elapsed_s'])))" \
+    "$OUT/pixie_default.pt.state.pt") || { say "cannot read the training state to resume"; exit 1; }
+  say "resuming: ${PRIOR_S} s trained before, up to ${FULL_BUDGET} s more"
+fi
 train() {  # name inputs budget extra-args...
   local name=$1 inputs=$2 budget=$3; shift 3
-  local launcher=$P; [ "$name" = pixie_default ] && launcher=$TRAIN_P
+  local launcher=$P prior=0; [ "$name" = pixie_default ] && launcher=$TRAIN_P prior=$PRIOR_S
   timeout $(( budget + LOAD_S )) $launcher train "$DATA" --out "$OUT/$name.pt" --device $DEVICE --epochs 200 \
-    --time-budget-s $budget --inputs $inputs --workers $WORKERS --log-json "$OUT/train_$name.json" -q "$@" $EXTRA_TRAIN_ARGS \
+    --time-budget-s $(( budget + prior )) --inputs $inputs --workers $WORKERS --log-json "$OUT/train_$name.json" -q "$@" $EXTRA_TRAIN_ARGS \
     >>"$LOG" 2>&1 && say "trained $name" || say "train $name failed"
   timeout 120 $P evaluate "$OUT/$name.pt" "$DATA" --split test --device $DEVICE --workers $WORKERS -q \
     --json "$OUT/eval_$name.json" >"$OUT/eval_$name.txt" 2>&1 && say "evaluated $name" || say "evaluate $name failed"
