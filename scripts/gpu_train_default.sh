@@ -6,8 +6,8 @@
 # Sizes come from the environment so the same script smoke-tests on a CPU at tiny size:
 #   TRAIN_TIERS='10:2000 10:5000' VAL_TIERS='6:3000' TEST_TIERS='5:2000 5:6000' NABL=10 DEVICE=cpu TOTAL_S=400 WORKERS=2 OUT=/tmp/o scripts/gpu_train_default.sh
 # and data-parallel over two CPU processes (gloo), as NPROC=2 runs it over two GPUs:
-#   NPROC=2 ABLATIONS=0 TRAIN_TIERS='12:2000' VAL_TIERS='6:2000' TEST_TIERS='4:2000' DEVICE=cpu TOTAL_S=300 WORKERS=1 \
-#     EXTRA_TRAIN_ARGS='--resolution 32 --base-channels 8' OUT=/tmp/o scripts/gpu_train_default.sh
+#   NPROC=2 ABLATIONS=0 TRAIN_TIERS='12:2000' VAL_TIERS='6:2000' TEST_TIERS='4:2000' DEVICE=cpu TOTAL_S=200 RESERVE_S=60 \
+#     WORKERS=1 EXTRA_TRAIN_ARGS='--resolution 32 --base-channels 8' OUT=/tmp/o scripts/gpu_train_default.sh
 set -u -o pipefail
 START=$(date +%s)
 OUT=${OUT:?set OUT to the output folder}
@@ -71,9 +71,14 @@ say "training: full budget ${FULL_BUDGET} s, ablations ${ABL_BUDGET} s each"
 # A resumed run (--resume in EXTRA_TRAIN_ARGS, CKPT.state.pt copied into $OUT) counts the seconds trained before
 # in its --time-budget-s; add them, so TOTAL_S stays this call's time whatever was trained before.
 PRIOR_S=0
-if [[ " $EXTRA_TRAIN_ARGS " == *" --resume "* ]] && [ -f "$OUT/pixie_default.pt.state.pt" ]; then
-  PRIOR_S=$(python3 -c "import sys, torch; print(int(float(torch.load(sys.argv[1], map_location='cpu', weights_only=True)['elapsed_s'])))" \
-    "$OUT/pixie_default.pt.state.pt") || { say "cannot read the training state to resume"; exit 1; }
+if [[ " $EXTRA_TRAIN_ARGS " == *" --resume "* ]]; then  # no state: 0 here, and `pixie train --resume` says so
+  PRIOR_S=$(python3 - "$OUT/pixie_default.pt" <<'PY'
+import sys
+from pixie_gs.model.checkpoint import load_training_state, state_path
+side = state_path(sys.argv[1])
+print(int(float(load_training_state(side)["elapsed_s"])) if side.exists() else 0)
+PY
+) || { say "cannot read the training state to resume"; exit 1; }
   say "resuming: ${PRIOR_S} s trained before, up to ${FULL_BUDGET} s more"
 fi
 train() {  # name inputs budget extra-args...
