@@ -35,7 +35,16 @@ say "host: $(nproc --all) cores; $(python3 -c 'import torch;print(torch.__versio
 TRAIN_TIERS=${TRAIN_TIERS:-"1000:4000 1000:12000 700:30000 300:60000"}
 VAL_TIERS=${VAL_TIERS:-"100:4000 100:12000 70:30000 30:60000"}
 TEST_TIERS=${TEST_TIERS:-"100:5000 100:20000 100:50000"}
+# REUSE_DATA=1 trains on a dataset an earlier run on this machine left in $DATA (made from the same tiers and
+# SEED, as $DATA/made_from.txt records), so a second fine-tune in one device session skips generation
+MADE_FROM="SEED=$SEED TRAIN_TIERS=$TRAIN_TIERS VAL_TIERS=$VAL_TIERS TEST_TIERS=$TEST_TIERS"
+if [ "${REUSE_DATA:-0}" = 1 ]; then
+  [ "$(cat "$DATA/made_from.txt" 2>/dev/null)" = "$MADE_FROM" ] \
+    || { say "REUSE_DATA=1 but $DATA was not made from these tiers and seed (see $DATA/made_from.txt)"; exit 1; }
+  say "reusing the dataset in $DATA"
+fi
 for split in train val test; do
+  [ "${REUSE_DATA:-0}" = 1 ] && break
   tiers=$TRAIN_TIERS; [ $split = val ] && tiers=$VAL_TIERS; [ $split = test ] && tiers=$TEST_TIERS
   parts=(); k=0
   for tier in $tiers; do
@@ -61,6 +70,7 @@ for split in train val test; do
   say "generated $split: $tiers"
 done
 rm -rf "$DATA/parts"
+echo "$MADE_FROM" >"$DATA/made_from.txt"
 du -sh "$DATA" >>"$LOG"
 NOW=$(elapsed)
 FULL_BUDGET=$(( TOTAL_S - NOW - RESERVE_S ))     # leave time for loading + test evaluation
