@@ -97,6 +97,13 @@ def anchored_config(start: Path):
     return tiny_config(init_from=str(start), anchor_weight=50.0)
 
 
+def distilled_config(out: Path):
+    """A fine-tune of ddp.pt held towards anchored.pt's outputs on the sport balls (the cans left to the
+    labels), so some ranks' shares have no kept voxels."""
+    return tiny_config(init_from=str(out / "ddp.pt"), distill_from=str(out / "anchored.pt"), distill_weight=10.0,
+                       distill_skip=["soda_cans"])
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -173,6 +180,8 @@ def _worker(rank: int, world: int, port: int, data_dir: str, out_dir: str) -> No
             budget = str(exc)
         # a fine-tune of that run's weights with the L2-SP anchor: every rank adds the same penalty
         train_mod.train(data_dir, out / "anchored.pt", anchored_config(out / "ddp.pt"), device, dist=ctx)
+        # distillation: each rank's term scaled by its share of the kept voxels
+        train_mod.train(data_dir, out / "distilled.pt", distilled_config(out), device, dist=ctx)
         torch.save({"grads": grads, "built": built_main, "saved": saved, "weights": weights, "budget": budget},
                    out / f"rank{rank}.pt")
     finally:
@@ -294,20 +303,23 @@ def test_torchrun_cli_resumes_a_preempted_run(data, tmp_path):
     assert log == history
 
 
-def test_anchored_fine_tune_matches_one_process(two_ranks, data, tmp_path):
-    """`--anchor-weight` under DDP: each rank adds the same Σ (θ − θ_start)², and the run matches one process
-    doing the same fine-tune epoch by epoch, drift included."""
+@pytest.mark.parametrize("name,logged", [("anchored", "drift_sq"), ("distilled", "train_distill")])
+def test_fine_tune_terms_match_one_process(two_ranks, data, tmp_path, name, logged):
+    """`--anchor-weight` (each rank adds the same Σ (θ − θ_start)²) and `--distill` (each rank's term scaled by
+    its share of the kept voxels) under DDP: the run matches one process doing the same fine-tune epoch by
+    epoch, the logged term included."""
     from pixie_gs.model.train import train
     from pixie_gs.progress import set_quiet
 
     out, _ = two_ranks
+    config = anchored_config(out / "ddp.pt") if name == "anchored" else distilled_config(out)
     set_quiet(True)
     try:
-        meta = train(data, tmp_path / "one.pt", anchored_config(out / "ddp.pt"), "cpu")
+        meta = train(data, tmp_path / "one.pt", config, "cpu")
     finally:
         set_quiet(False)
-    ddp_history = json.loads(torch.load(str(out / "anchored.pt") + ".state.pt", weights_only=True)["history_json"])
-    assert all(row["drift_sq"] > 0 for row in ddp_history)
+    ddp_history = json.loads(torch.load(str(out / f"{name}.pt") + ".state.pt", weights_only=True)["history_json"])
+    assert all(row[logged] > 0 for row in ddp_history)
     for a, b in zip(meta["history"], ddp_history, strict=True):
-        for key in ("train_loss", "val_loss", "drift_sq"):
+        for key in ("train_loss", "val_loss", logged):
             assert a[key] == pytest.approx(b[key], rel=1e-3, abs=1e-6), key

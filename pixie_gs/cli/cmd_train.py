@@ -64,6 +64,15 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--anchor-weight", type=float, default=0.0, metavar="W",
                    help="with --init: add W · Σ (θ − θ_init)² to the loss (L2-SP), keeping a fine-tune near its start "
                    "weights; every epoch logs that sum as drift_sq (default 0: no penalty)")
+    p.add_argument("--distill", default=None, metavar="CKPT",
+                   help="hold the outputs near this checkpoint's: add W · (KL of the class distributions + squared "
+                   "difference of E, ν, ρ, normalised) on the occupied voxels of every training object whose kind "
+                   "is not in --distill-skip; keeps a fine-tune's old kinds (docs/training.md)")
+    p.add_argument("--distill-weight", type=float, default=1.0, metavar="W",
+                   help="with --distill: the weight W of that term (default 1)")
+    p.add_argument("--distill-skip", default="", metavar="KINDS",
+                   help="with --distill: object kinds (classes.json names, comma-separated) left to the labels "
+                   "alone, e.g. the kinds the teacher never saw")
     p.add_argument("--keep-epochs", action="store_true",
                    help="also write every epoch's weights as CKPT_STEM.epochNN.pt (to score each on real captures, "
                    "e.g. benchmarks/bench_real_set.py, before picking one)")
@@ -117,13 +126,19 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--anchor-weight must be a finite number ≥ 0 (got {args.anchor_weight})")
     if args.anchor_weight > 0 and not args.init:
         raise InputError("--anchor-weight needs --init (the weights to stay near)")
+    if not (math.isfinite(args.distill_weight) and args.distill_weight >= 0.0):
+        raise InputError(f"--distill-weight must be a finite number ≥ 0 (got {args.distill_weight})")
+    distill_skip = [k for k in (v.strip() for v in args.distill_skip.split(",")) if k]
+    if distill_skip and not args.distill:
+        raise InputError("--distill-skip needs --distill (the teacher checkpoint)")
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, time_budget_s=args.time_budget_s,
                       seed=args.seed, augment=not args.no_augment, workers=args.workers,
                       tilt_max_deg=args.tilt_deg, tilt_share=args.tilt_share, margin_max=args.frame_margin_max,
                       decal_share=args.decal_share, hue_share=args.hue_share,
                       limit_train=args.limit_train, limit_val=args.limit_val, input_mode=args.inputs,
                       init_from=args.init, objects_per_build=args.build_objects, keep_epochs=args.keep_epochs,
-                      anchor_weight=args.anchor_weight,
+                      anchor_weight=args.anchor_weight, distill_from=args.distill,
+                      distill_weight=args.distill_weight, distill_skip=distill_skip,
                       model={"base_channels": args.base_channels, "multipliers": mults, "res_blocks": args.res_blocks,
                              "context_width": args.context_width},
                       features={"resolution": args.resolution})

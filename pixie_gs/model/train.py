@@ -22,7 +22,8 @@ from ..materials import NUM_CLASSES
 from ..progress import progress, stage
 from .batch import AugmentConfig, Batch, build_batch
 from .checkpoint import FeatureSpec, LoadedModel, load_training_state, save_checkpoint, state_path
-from .distributed import SINGLE, DistContext, barrier, from_main, global_batch_loss, sum_across
+from .distill import distillation_loss, kept_objects, load_teacher
+from .distributed import SINGLE, DistContext, barrier, from_main, global_batch_loss, rank_share, sum_across
 from .evaluate import evaluate_store
 from .predict import grid_channel_names, object_feature_summary, select_inputs
 from .step_batches import default_objects_per_build, step_batches
@@ -51,6 +52,9 @@ class TrainConfig:
     input_mode: str = "full"
     init_from: str | None = None  # start from this checkpoint's weights (same network config), fresh optimiser
     anchor_weight: float = 0.0  # L2-SP: loss += w · Σ (θ − θ_init)² over the weights (needs init_from)
+    distill_from: str | None = None  # teacher checkpoint whose outputs the student is held near (distill.py)
+    distill_weight: float = 1.0  # loss += w · distillation term (with distill_from)
+    distill_skip: list[str] = field(default_factory=list)  # object kinds left out of the distillation term
     keep_epochs: bool = False  # also write every epoch's weights (epoch_checkpoint_path) to pick among them later
     model: dict = field(default_factory=dict)  # ModelConfig overrides (base_channels, multipliers, …)
     objects_per_build: int | None = None  # grids built per call, several steps' worth (None: by device)
@@ -120,9 +124,13 @@ def load_init_weights(net, init_model, init_config: ModelConfig, config: ModelCo
 
 
 def batch_loss(model, batch: Batch, counts: bool, names: list[str], inputs: list[str], class_weight: float,
-               use_amp: bool, ctx: DistContext = SINGLE):
+               use_amp: bool, ctx: DistContext = SINGLE, distill=None):
     """Run the model on this rank's share of a global batch (see step_batches.py): returns (loss to
-    back-propagate, the loss value of the whole global batch, its parts)."""
+    back-propagate, the loss value of the whole global batch, its parts).
+
+    `distill` (teacher network, keep (B,) bool, weight) adds weight · distillation_loss over the kept
+    objects' voxels of the whole global batch (parts["distill"]: its unweighted value); the reported loss
+    value stays the label loss."""
     import torch
 
     x = select_inputs(batch.inputs, names, inputs)
@@ -130,10 +138,23 @@ def batch_loss(model, batch: Batch, counts: bool, names: list[str], inputs: list
         logits, physical = model(x)
     loss, parts = masked_loss(logits, physical, batch.target_class, batch.target_physical, batch.occupied,
                               class_weight)
-    if not ctx.enabled:
-        return loss, float(loss.detach()), parts
-    return global_batch_loss(loss, parts, int(batch.occupied.sum()), counts, class_weight, ctx,
-                             str(batch.occupied.device))
+    if ctx.enabled:
+        loss, value, parts = global_batch_loss(loss, parts, int(batch.occupied.sum()), counts, class_weight, ctx,
+                                               str(batch.occupied.device))
+    else:
+        value = float(loss.detach())
+    if distill is not None:
+        teacher, keep, weight = distill
+        with torch.no_grad(), torch.autocast("cuda", dtype=torch.bfloat16, enabled=use_amp):
+            t_logits, t_physical = teacher(x)
+        term = distillation_loss(logits, physical, t_logits, t_physical, batch.occupied, keep)
+        # like global_batch_loss: scaled by this rank's share of the kept voxels, so DDP's gradient mean is
+        # the gradient of the term over the whole global batch
+        mine = int((batch.occupied & keep.view(-1, 1, 1, 1)).sum()) if counts else 0
+        total, whole = sum_across([mine, mine * float(term.detach())], ctx, str(batch.occupied.device))
+        loss = loss + weight * term * (ctx.world_size * mine / max(total, 1.0))
+        parts = {**parts, "distill": whole / max(total, 1.0)}
+    return loss, value, parts
 
 
 def squared_distance(net, anchor: dict):
@@ -223,6 +244,14 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
             stage(f"starting from the weights of {cfg.init_from}"
                   + ("; the new object-context branch starts at zero (the same outputs)" if grown else ""))
         anchor = {name: p.detach().clone().to(device) for name, p in start.named_parameters()}
+    teacher = None
+    if cfg.distill_from:
+        unknown = sorted(set(cfg.distill_skip) - set(train_store.class_names))
+        if unknown:  # most likely a misspelt kind, which would silently distil what it meant to skip
+            raise InputError(f"--distill-skip: no training object of kind {', '.join(unknown)}", data_dir)
+        teacher = load_teacher(cfg.distill_from, inputs, device)
+        stage(f"distilling from {cfg.distill_from} (weight {cfg.distill_weight:g}"
+              + (f"; not on {', '.join(cfg.distill_skip)})" if cfg.distill_skip else ")"))
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     history: list[dict] = []
     start_epoch, step, elapsed_before, best = 0, 0, 0.0, -math.inf
@@ -266,6 +295,8 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         order = torch.randperm(len(train_store), generator=gen).tolist()
         batches = [order[i:i + cfg.batch_size] for i in range(0, len(order), cfg.batch_size)]
         sums = {"loss": 0.0, "ce": 0.0, "mse_log_E": 0.0, "mse_nu": 0.0, "mse_log_rho": 0.0}
+        if teacher is not None:
+            sums["distill"] = 0.0
         done = objects = 0
         t_epoch = time.perf_counter()
         # augmentation: per object and epoch (batch.object_generator), so every rank draws what one process would
@@ -281,7 +312,14 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
                     break
             for g in opt.param_groups:
                 g["lr"] = learning_rate(cfg, step, total_steps, elapsed)
-            loss, value, parts = batch_loss(model, batch, counts, names, inputs, cfg.class_weight, use_amp, dist)
+            distill = None
+            if teacher is not None:
+                share, _ = rank_share(ids, dist)  # the objects of this rank's batch, in its order
+                keep = torch.tensor(kept_objects(train_store.class_names, share, cfg.distill_skip),
+                                    device=batch.occupied.device)
+                distill = (teacher, keep, cfg.distill_weight)
+            loss, value, parts = batch_loss(model, batch, counts, names, inputs, cfg.class_weight, use_amp, dist,
+                                            distill)
             if cfg.anchor_weight > 0:  # every rank adds the same term: DDP's gradient mean keeps it as is
                 loss = loss + cfg.anchor_weight * squared_distance(net, anchor)
             if summarised < FEATURE_STATS_OBJECTS:
