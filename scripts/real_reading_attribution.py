@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_real_set import CLI, inputs, run  # noqa: E402  (one way to turn the set's files into splats)
+from bench_real_set import CLI, expectation_entries, inputs, run  # noqa: E402  (one way to turn the set's files into splats)
 
 from pixie_gs.model.attribution import loss_gradient, reading_gradient, step_cosine  # noqa: E402
 from pixie_gs.model.checkpoint import load_checkpoint  # noqa: E402
@@ -42,9 +42,9 @@ from pixie_gs.splat import read_splat  # noqa: E402
 
 def real_readings(loaded, real: Path, work: Path) -> list[dict]:
     """Every (check, quantity) reading of the set: its name, value and gradient."""
-    files = inputs(real, work)
+    files = inputs(real, real / "orig", work)
     readings = []
-    for entry in json.loads((real / "expectations.json").read_text()):
+    for entry in expectation_entries(real):
         cloud = read_splat(files[entry["file"]])
         lo, hi = np.asarray(entry["object_box"], float)
         cloud = cloud.subset(np.all((cloud.means >= lo) & (cloud.means <= hi), axis=1))
