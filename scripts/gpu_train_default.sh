@@ -42,6 +42,8 @@ if [ "${REUSE_DATA:-0}" = 1 ]; then
   [ "$(cat "$DATA/made_from.txt" 2>/dev/null)" = "$MADE_FROM" ] \
     || { say "REUSE_DATA=1 but $DATA was not made from these tiers and seed (see $DATA/made_from.txt)"; exit 1; }
   say "reusing the dataset in $DATA"
+else
+  rm -f "$DATA/made_from.txt"  # written again only once every split is made: a run cut short leaves none
 fi
 for split in train val test; do
   [ "${REUSE_DATA:-0}" = 1 ] && break

@@ -68,7 +68,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
                    help="hold the outputs near this checkpoint's: add W · (KL of the class distributions + squared "
                    "difference of E, ν, ρ, normalised) on the occupied voxels of every training object whose kind "
                    "is not in --distill-skip; keeps a fine-tune's old kinds (docs/training.md)")
-    p.add_argument("--distill-weight", type=float, default=1.0, metavar="W",
+    p.add_argument("--distill-weight", type=float, default=None, metavar="W",
                    help="with --distill: the weight W of that term (default 1)")
     p.add_argument("--distill-skip", default="", metavar="KINDS",
                    help="with --distill: object kinds (classes.json names, comma-separated) left to the labels "
@@ -126,11 +126,17 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--anchor-weight must be a finite number ≥ 0 (got {args.anchor_weight})")
     if args.anchor_weight > 0 and not args.init:
         raise InputError("--anchor-weight needs --init (the weights to stay near)")
-    if not (math.isfinite(args.distill_weight) and args.distill_weight >= 0.0):
-        raise InputError(f"--distill-weight must be a finite number ≥ 0 (got {args.distill_weight})")
+    distill_weight = 1.0 if args.distill_weight is None else args.distill_weight
+    if not (math.isfinite(distill_weight) and distill_weight >= 0.0):
+        raise InputError(f"--distill-weight must be a finite number ≥ 0 (got {distill_weight})")
     distill_skip = [k for k in (v.strip() for v in args.distill_skip.split(",")) if k]
-    if distill_skip and not args.distill:
-        raise InputError("--distill-skip needs --distill (the teacher checkpoint)")
+    if (distill_skip or args.distill_weight is not None) and not args.distill:
+        raise InputError(f"{'--distill-skip' if distill_skip else '--distill-weight'} needs --distill (the teacher "
+                         "checkpoint)")
+    if args.distill:  # a missing or broken teacher is named before the data load, not minutes into it
+        from ..model.checkpoint import load_checkpoint
+
+        load_checkpoint(args.distill, "cpu")
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, time_budget_s=args.time_budget_s,
                       seed=args.seed, augment=not args.no_augment, workers=args.workers,
                       tilt_max_deg=args.tilt_deg, tilt_share=args.tilt_share, margin_max=args.frame_margin_max,
@@ -138,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
                       limit_train=args.limit_train, limit_val=args.limit_val, input_mode=args.inputs,
                       init_from=args.init, objects_per_build=args.build_objects, keep_epochs=args.keep_epochs,
                       anchor_weight=args.anchor_weight, distill_from=args.distill,
-                      distill_weight=args.distill_weight, distill_skip=distill_skip,
+                      distill_weight=distill_weight, distill_skip=distill_skip,
                       model={"base_channels": args.base_channels, "multipliers": mults, "res_blocks": args.res_blocks,
                              "context_width": args.context_width},
                       features={"resolution": args.resolution})

@@ -10,45 +10,71 @@ kinds listed in `--distill-skip` (the teacher never saw them, so its outputs the
 """
 from __future__ import annotations
 
-from typing import Sequence
+from typing import TYPE_CHECKING, NamedTuple, Sequence
 
 from ..errors import InputError
 
+if TYPE_CHECKING:
+    import torch
 
-def distillation_loss(logits, physical, teacher_logits, teacher_physical, occupied, keep):
-    """KL(p_teacher ‖ p_student) + Σ over log E, ν, log ρ of (student − teacher)², averaged over the
-    occupied voxels of the objects with keep[b] True; a 0-d tensor, and 0 when no voxel is kept.
+    from .checkpoint import FeatureSpec
+    from .unet import MaterialUNet
+
+
+class Distillation(NamedTuple):
+    """What one training step needs to add the term: the teacher, which objects of this rank's batch take
+    part, and the term's weight."""
+
+    teacher: "MaterialUNet"
+    keep: "torch.Tensor"  # (B,) bool
+    weight: float
+
+
+def distillation_loss(logits: "torch.Tensor", physical: "torch.Tensor", teacher_logits: "torch.Tensor",
+                      teacher_physical: "torch.Tensor", occupied: "torch.Tensor", keep: "torch.Tensor"
+                      ) -> tuple["torch.Tensor", int]:
+    """(KL(p_teacher ‖ p_student) + Σ over log E, ν, log ρ of (student − teacher)², averaged over the
+    occupied voxels of the objects with keep[b] True — a 0-d tensor, 0 when no voxel is kept — and the
+    number of those voxels).
 
     logits, teacher_logits (B,K,N,N,N); physical, teacher_physical (B,3,N,N,N) normalised targets;
     occupied (B,N,N,N) bool; keep (B,) bool."""
     import torch
 
     mask = (occupied & keep.view(-1, 1, 1, 1)).reshape(-1)
-    count = mask.sum()
-    if int(count) == 0:
-        return logits.sum() * 0.0  # keeps the graph: every rank back-propagates the same way
+    count = int(mask.sum())
+    if count == 0:
+        return logits.sum() * 0.0, 0  # keeps the graph: every rank back-propagates the same way
     k = logits.shape[1]
     log_p = torch.log_softmax(logits.float().permute(0, 2, 3, 4, 1).reshape(-1, k)[mask], dim=1)
     log_q = torch.log_softmax(teacher_logits.float().permute(0, 2, 3, 4, 1).reshape(-1, k)[mask], dim=1)
     kl = (log_q.exp() * (log_q - log_p)).sum()
     diff = (physical.float() - teacher_physical.float()).permute(0, 2, 3, 4, 1).reshape(-1, 3)[mask]
-    return (kl + (diff ** 2).sum()) / count
+    return (kl + (diff ** 2).sum()) / count, count
 
 
 def kept_objects(class_names: Sequence[str], ids: Sequence[int], skip: Sequence[str]) -> list[bool]:
-    """For each object id of a batch, whether it takes part in the distillation (its kind is not skipped)."""
+    """For each object id of a batch, whether it takes part in the distillation (its kind is not skipped).
+
+    A pair object (`generate --pairs`) carries its first object's kind only, so its partner is distilled or
+    skipped with it."""
     skipped = set(skip)
     return [class_names[i] not in skipped for i in ids]
 
 
-def load_teacher(path: str, input_channels: Sequence[str], device: str):
-    """The teacher network (eval mode, no gradients) on `device`; it must read the same input channels as
-    the network being trained, since it runs on the same grids."""
+def load_teacher(path: str, input_channels: Sequence[str], spec: "FeatureSpec", device: str) -> "MaterialUNet":
+    """The teacher network (eval mode, no gradients) on `device`. It runs on the student's grids, so it must
+    read the same input channels from grids built the same way (resolution, pre-filter, margin)."""
     from .checkpoint import load_checkpoint
 
     teacher = load_checkpoint(path, device)
     if list(teacher.config.input_channels) != list(input_channels):
         raise InputError("--distill checkpoint reads other input channels than the network being trained", path)
+    mine, theirs = spec.to_dict(), teacher.features.to_dict()
+    differ = [k for k in ("resolution", "filter_voxels", "margin") if mine[k] != theirs[k]]
+    if differ:
+        raise InputError("--distill checkpoint was trained on other grids ("
+                         + ", ".join(f"{k} {theirs[k]} against {mine[k]}" for k in differ) + ")", path)
     teacher.model.eval()
     for p in teacher.model.parameters():
         p.requires_grad_(False)

@@ -22,7 +22,7 @@ from ..materials import NUM_CLASSES
 from ..progress import progress, stage
 from .batch import AugmentConfig, Batch, build_batch
 from .checkpoint import FeatureSpec, LoadedModel, load_training_state, save_checkpoint, state_path
-from .distill import distillation_loss, kept_objects, load_teacher
+from .distill import Distillation, distillation_loss, kept_objects, load_teacher
 from .distributed import SINGLE, DistContext, barrier, from_main, global_batch_loss, rank_share, sum_across
 from .evaluate import evaluate_store
 from .predict import grid_channel_names, object_feature_summary, select_inputs
@@ -124,11 +124,11 @@ def load_init_weights(net, init_model, init_config: ModelConfig, config: ModelCo
 
 
 def batch_loss(model, batch: Batch, counts: bool, names: list[str], inputs: list[str], class_weight: float,
-               use_amp: bool, ctx: DistContext = SINGLE, distill=None):
+               use_amp: bool, ctx: DistContext = SINGLE, distill: Distillation | None = None):
     """Run the model on this rank's share of a global batch (see step_batches.py): returns (loss to
     back-propagate, the loss value of the whole global batch, its parts).
 
-    `distill` (teacher network, keep (B,) bool, weight) adds weight · distillation_loss over the kept
+    `distill` (teacher, which objects take part, weight) adds weight · distillation_loss over the kept
     objects' voxels of the whole global batch (parts["distill"]: its unweighted value); the reported loss
     value stays the label loss."""
     import torch
@@ -144,15 +144,14 @@ def batch_loss(model, batch: Batch, counts: bool, names: list[str], inputs: list
     else:
         value = float(loss.detach())
     if distill is not None:
-        teacher, keep, weight = distill
         with torch.no_grad(), torch.autocast("cuda", dtype=torch.bfloat16, enabled=use_amp):
-            t_logits, t_physical = teacher(x)
-        term = distillation_loss(logits, physical, t_logits, t_physical, batch.occupied, keep)
+            t_logits, t_physical = distill.teacher(x)
+        term, kept = distillation_loss(logits, physical, t_logits, t_physical, batch.occupied, distill.keep)
         # like global_batch_loss: scaled by this rank's share of the kept voxels, so DDP's gradient mean is
         # the gradient of the term over the whole global batch
-        mine = int((batch.occupied & keep.view(-1, 1, 1, 1)).sum()) if counts else 0
+        mine = kept if counts else 0
         total, whole = sum_across([mine, mine * float(term.detach())], ctx, str(batch.occupied.device))
-        loss = loss + weight * term * (ctx.world_size * mine / max(total, 1.0))
+        loss = loss + distill.weight * term * (ctx.world_size * mine / max(total, 1.0))
         parts = {**parts, "distill": whole / max(total, 1.0)}
     return loss, value, parts
 
@@ -215,6 +214,12 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         if cfg.time_budget_s and trained_s + 1.0 >= cfg.time_budget_s:
             raise InputError(f"--time-budget-s {cfg.time_budget_s:.0f} is already spent: the budget counts the "
                              f"{trained_s:.0f} s trained before this resume; give more to train on", side)
+    if cfg.distill_skip:  # before the data load (minutes on a large set): a misspelt kind would be distilled
+        index = Path(data_dir) / "train" / "index.json"
+        kinds = {e.get("class") for e in json.loads(index.read_text()).get("objects", [])} if index.exists() else set()
+        unknown = sorted(set(cfg.distill_skip) - kinds)
+        if unknown:
+            raise InputError(f"--distill-skip: no training object of kind {', '.join(unknown)}", index)
     t0 = time.perf_counter()
     torch.manual_seed(cfg.seed)
     stage(f"loading training data from {data_dir}")
@@ -246,10 +251,7 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         anchor = {name: p.detach().clone().to(device) for name, p in start.named_parameters()}
     teacher = None
     if cfg.distill_from:
-        unknown = sorted(set(cfg.distill_skip) - set(train_store.class_names))
-        if unknown:  # most likely a misspelt kind, which would silently distil what it meant to skip
-            raise InputError(f"--distill-skip: no training object of kind {', '.join(unknown)}", data_dir)
-        teacher = load_teacher(cfg.distill_from, inputs, device)
+        teacher = load_teacher(cfg.distill_from, inputs, spec, device)
         stage(f"distilling from {cfg.distill_from} (weight {cfg.distill_weight:g}"
               + (f"; not on {', '.join(cfg.distill_skip)})" if cfg.distill_skip else ")"))
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -317,7 +319,7 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
                 share, _ = rank_share(ids, dist)  # the objects of this rank's batch, in its order
                 keep = torch.tensor(kept_objects(train_store.class_names, share, cfg.distill_skip),
                                     device=batch.occupied.device)
-                distill = (teacher, keep, cfg.distill_weight)
+                distill = Distillation(teacher, keep, cfg.distill_weight)
             loss, value, parts = batch_loss(model, batch, counts, names, inputs, cfg.class_weight, use_amp, dist,
                                             distill)
             if cfg.anchor_weight > 0:  # every rank adds the same term: DDP's gradient mean keeps it as is
