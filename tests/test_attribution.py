@@ -70,3 +70,37 @@ def test_a_reading_needs_gaussians_and_a_known_quantity(bread):
         reading_gradient(loaded, bread, "z", np.zeros(len(bread), bool), "log_E")
     with pytest.raises(ValueError, match="quantity"):
         reading_gradient(loaded, bread, "z", np.ones(len(bread), bool), "stiffness")
+
+
+def test_the_attribution_script_runs_on_a_set_it_is_given(bread, tmp_path):
+    """scripts/real_reading_attribution.py end to end on a one-asset stand-in for the real set (a generated
+    loaf as its published file) and a two-category train split: it must keep up with bench_real_set's helpers
+    (it broke silently once when their arguments changed) and write one finite cosine per object and reading."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from pixie_gs.cli.main import main
+    from pixie_gs.splat import write_splat
+
+    root = Path(__file__).resolve().parent.parent
+    real = tmp_path / "real"
+    (real / "orig").mkdir(parents=True)
+    write_splat(bread, real / "orig" / "loaf.ply")
+    everywhere = [[-100.0, -100.0, -100.0], [100.0, 100.0, 100.0]]
+    (real / "expectations.json").write_text(json.dumps([{
+        "file": "loaf.ply", "up": [0.0, 0.0, 1.0], "object_box": everywhere,
+        "regions": [{"region": "loaf", "box": everywhere,
+                     "expect": {"class_in": [0], "density_range": [100, 700], "min_share": 0.7}}]}]))
+    data = tmp_path / "data"
+    assert main(["generate", str(data), "--count", "2", "--split", "train", "--gaussians", "1500",
+                 "--classes", "bread,mugs", "-q"]) == 0
+    out = tmp_path / "attr.json"
+    done = subprocess.run([sys.executable, str(root / "scripts" / "real_reading_attribution.py"), "--real", str(real),
+                           "--data", str(data), "--json", str(out)], capture_output=True, text=True, cwd=root)
+    assert done.returncode == 0, done.stderr[-2000:]
+    result = json.loads(out.read_text())
+    assert [r["name"] for r in result["readings"]] == ["loaf: loaf (log_E)", "loaf: loaf (log_rho)"]
+    assert sorted(row["category"] for row in result["objects"]) == ["bread", "mugs"]
+    assert all(len(row["cos"]) == 2 and all(-1.0 <= c <= 1.0 for c in row["cos"]) for row in result["objects"])
