@@ -36,8 +36,8 @@ def test_distillation_loss_is_kl_plus_squared_difference_over_kept_occupied_voxe
     got, kept = distillation_loss(*(torch.tensor(a) for a in (logits, phys, t_logits, t_phys)),
                                   torch.tensor(occupied), torch.tensor(keep))
     assert count > 0 and kept == count and float(got) == pytest.approx(total / count, rel=1e-5)
-    same, _ = distillation_loss(*(torch.tensor(a) for a in (logits, phys, logits, phys)), torch.tensor(occupied),
-                             torch.tensor(keep))
+    same, _ = distillation_loss(*(torch.tensor(a) for a in (logits, phys, logits, phys)),
+                                torch.tensor(occupied), torch.tensor(keep))
     assert abs(float(same)) < 1e-6
 
 
@@ -45,7 +45,7 @@ def test_distillation_loss_without_kept_voxels_is_zero_and_differentiable():
     logits = torch.randn(2, 3, 2, 2, 2, requires_grad=True)
     phys = torch.randn(2, 3, 2, 2, 2)
     term, kept = distillation_loss(logits, phys, torch.randn(2, 3, 2, 2, 2), torch.randn(2, 3, 2, 2, 2),
-                             torch.ones(2, 2, 2, 2, dtype=torch.bool), torch.tensor([False, False]))
+                                   torch.ones(2, 2, 2, 2, dtype=torch.bool), torch.tensor([False, False]))
     term.backward()
     assert kept == 0 and float(term.detach()) == 0.0 and float(logits.grad.abs().sum()) == 0.0
 
@@ -114,31 +114,22 @@ def test_distillation_holds_a_fine_tune_near_its_teacher_and_skipping_every_kind
     assert all(torch.equal(plain[k], skipped[k]) for k in plain)
 
 
-@pytest.mark.parametrize("args,message", [
-    (["--distill-skip", "cloth"], "--distill-skip needs --distill"),
-    (["--distill-weight", "2"], "--distill-weight needs --distill"),
-    (["--distill", "missing.pt"], "missing.pt"),
-    (["--distill", "x.pt", "--distill-weight", "-1"], "--distill-weight must be a finite number ≥ 0"),
-    (["--distill", "x.pt", "--distill-weight", "inf"], "--distill-weight must be a finite number ≥ 0")])
-def test_train_refuses_a_distillation_it_cannot_apply(tmp_path, capsys, args, message):
+def _assert_refused(capsys, argv: list[str], out, message: str) -> None:
+    """`pixie ARGV` exits 1 with one line on stderr holding `message`, and writes no checkpoint at `out`."""
     from pixie_gs.cli.main import main
 
-    rc = main(["train", str(tmp_path), "--out", str(tmp_path / "m.pt"), *args, "--device", "cpu", "-q"])
+    rc = main(argv)
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 1 and len(err) == 1 and message in err[0], (rc, err)
-    assert not (tmp_path / "m.pt").exists()
+    assert not out.exists()
 
 
 def test_train_refuses_a_skipped_kind_no_training_object_has(tiny_run, capsys):
     """A misspelt kind would silently distil what it meant to skip: it is named and refused."""
-    from pixie_gs.cli.main import main
-
     root, data, start, common = tiny_run
-    rc = main(["train", str(data), "--out", str(root / "typo.pt"), "--init", str(start), "--epochs", "1",
-               "--distill", str(start), "--distill-skip", "soda_can", *common])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert rc == 1 and len(err) == 1 and "no training object of kind soda_can" in err[0], (rc, err)
-    assert not (root / "typo.pt").exists()
+    _assert_refused(capsys, ["train", str(data), "--out", str(root / "typo.pt"), "--init", str(start), "--epochs", "1",
+                             "--distill", str(start), "--distill-skip", "soda_can", *common],
+                    root / "typo.pt", "no training object of kind soda_can")
 
 
 @pytest.mark.parametrize("flags,message", [
@@ -147,12 +138,7 @@ def test_train_refuses_a_skipped_kind_no_training_object_has(tiny_run, capsys):
 def test_train_refuses_a_teacher_built_for_other_grids(tiny_run, capsys, flags, message):
     """The teacher runs on the student's grids: a teacher of another resolution or other input channels
     would be a meaningless pull, so it is refused in one line."""
-    from pixie_gs.cli.main import main
-
     root, data, start, common = tiny_run
     args = [a for a in common if a not in ("--resolution", "16")] if "--resolution" in flags else common
-    rc = main(["train", str(data), "--out", str(root / "other.pt"), "--epochs", "1", "--distill", str(start),
-               *flags, *args])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert rc == 1 and len(err) == 1 and message in err[0], (rc, err)
-    assert not (root / "other.pt").exists()
+    _assert_refused(capsys, ["train", str(data), "--out", str(root / "other.pt"), "--epochs", "1", "--distill",
+                             str(start), *flags, *args], root / "other.pt", message)

@@ -655,8 +655,15 @@ def test_train_refuses_a_network_the_checkpoint_loader_would_refuse(tmp_path, ca
 @pytest.mark.parametrize("args,message", [
     (["--anchor-weight", "0.5"], "--anchor-weight needs --init"),
     (["--anchor-weight", "-1", "--init", "x.pt"], "--anchor-weight must be a finite number ≥ 0"),
-    (["--anchor-weight", "nan", "--init", "x.pt"], "--anchor-weight must be a finite number ≥ 0")])
-def test_train_refuses_an_anchor_it_cannot_apply(tmp_path, capsys, args, message):
+    (["--anchor-weight", "nan", "--init", "x.pt"], "--anchor-weight must be a finite number ≥ 0"),
+    (["--distill-skip", "cloth"], "--distill-skip needs --distill"),
+    (["--distill-weight", "2"], "--distill-weight needs --distill"),
+    (["--distill", "missing.pt"], "missing.pt"),
+    (["--distill", "x.pt", "--distill-weight", "-1"], "--distill-weight must be a finite number ≥ 0"),
+    (["--distill", "x.pt", "--distill-weight", "inf"], "--distill-weight must be a finite number ≥ 0")])
+def test_train_refuses_a_fine_tune_term_it_cannot_apply(tmp_path, capsys, args, message):
+    """`--anchor-weight` and `--distill` (tests/test_distill.py) with what they need missing or out of range:
+    one line, no checkpoint."""
     from pixie_gs.cli.main import main
 
     rc = main(["train", str(tmp_path), "--out", str(tmp_path / "m.pt"), *args, "--device", "cpu", "-q"])

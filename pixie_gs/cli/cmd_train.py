@@ -133,10 +133,6 @@ def run(args: argparse.Namespace) -> int:
     if (distill_skip or args.distill_weight is not None) and not args.distill:
         raise InputError(f"{'--distill-skip' if distill_skip else '--distill-weight'} needs --distill (the teacher "
                          "checkpoint)")
-    if args.distill:  # a missing or broken teacher is named before the data load, not minutes into it
-        from ..model.checkpoint import load_checkpoint
-
-        load_checkpoint(args.distill, "cpu")
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, time_budget_s=args.time_budget_s,
                       seed=args.seed, augment=not args.no_augment, workers=args.workers,
                       tilt_max_deg=args.tilt_deg, tilt_share=args.tilt_share, margin_max=args.frame_margin_max,

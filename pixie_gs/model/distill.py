@@ -17,7 +17,7 @@ from ..errors import InputError
 if TYPE_CHECKING:
     import torch
 
-    from .checkpoint import FeatureSpec
+    from .checkpoint import FeatureSpec, LoadedModel
     from .unet import MaterialUNet
 
 
@@ -62,20 +62,26 @@ def kept_objects(class_names: Sequence[str], ids: Sequence[int], skip: Sequence[
     return [class_names[i] not in skipped for i in ids]
 
 
-def load_teacher(path: str, input_channels: Sequence[str], spec: "FeatureSpec", device: str) -> "MaterialUNet":
-    """The teacher network (eval mode, no gradients) on `device`. It runs on the student's grids, so it must
-    read the same input channels from grids built the same way (resolution, pre-filter, margin)."""
+def load_teacher(path: str, device: str) -> "LoadedModel":
+    """The teacher checkpoint on `device`, its network in eval mode without gradients. Loaded before the
+    training data (minutes on a large set), so a missing or broken file is named at once."""
     from .checkpoint import load_checkpoint
 
     teacher = load_checkpoint(path, device)
+    teacher.model.eval()
+    for p in teacher.model.parameters():
+        p.requires_grad_(False)
+    return teacher
+
+
+def check_teacher_fits(teacher: "LoadedModel", input_channels: Sequence[str], spec: "FeatureSpec") -> None:
+    """The teacher runs on the student's grids, so it must read the same input channels from grids built the
+    same way (resolution, pre-filter, margin); raises InputError naming the teacher otherwise."""
     if list(teacher.config.input_channels) != list(input_channels):
-        raise InputError("--distill checkpoint reads other input channels than the network being trained", path)
+        raise InputError("--distill checkpoint reads other input channels than the network being trained",
+                         teacher.path)
     mine, theirs = spec.to_dict(), teacher.features.to_dict()
     differ = [k for k in ("resolution", "filter_voxels", "margin") if mine[k] != theirs[k]]
     if differ:
         raise InputError("--distill checkpoint was trained on other grids ("
-                         + ", ".join(f"{k} {theirs[k]} against {mine[k]}" for k in differ) + ")", path)
-    teacher.model.eval()
-    for p in teacher.model.parameters():
-        p.requires_grad_(False)
-    return teacher.model
+                         + ", ".join(f"{k} {theirs[k]} against {mine[k]}" for k in differ) + ")", teacher.path)

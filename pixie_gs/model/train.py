@@ -22,7 +22,7 @@ from ..materials import NUM_CLASSES
 from ..progress import progress, stage
 from .batch import AugmentConfig, Batch, build_batch
 from .checkpoint import FeatureSpec, LoadedModel, load_training_state, save_checkpoint, state_path
-from .distill import Distillation, distillation_loss, kept_objects, load_teacher
+from .distill import Distillation, check_teacher_fits, distillation_loss, kept_objects, load_teacher
 from .distributed import SINGLE, DistContext, barrier, from_main, global_batch_loss, rank_share, sum_across
 from .evaluate import evaluate_store
 from .predict import grid_channel_names, object_feature_summary, select_inputs
@@ -220,6 +220,7 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         unknown = sorted(set(cfg.distill_skip) - kinds)
         if unknown:
             raise InputError(f"--distill-skip: no training object of kind {', '.join(unknown)}", index)
+    teacher = load_teacher(cfg.distill_from, device) if cfg.distill_from else None
     t0 = time.perf_counter()
     torch.manual_seed(cfg.seed)
     stage(f"loading training data from {data_dir}")
@@ -249,9 +250,8 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
             stage(f"starting from the weights of {cfg.init_from}"
                   + ("; the new object-context branch starts at zero (the same outputs)" if grown else ""))
         anchor = {name: p.detach().clone().to(device) for name, p in start.named_parameters()}
-    teacher = None
-    if cfg.distill_from:
-        teacher = load_teacher(cfg.distill_from, inputs, spec, device)
+    if teacher is not None:
+        check_teacher_fits(teacher, inputs, spec)
         stage(f"distilling from {cfg.distill_from} (weight {cfg.distill_weight:g}"
               + (f"; not on {', '.join(cfg.distill_skip)})" if cfg.distill_skip else ")"))
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -319,7 +319,7 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
                 share, _ = rank_share(ids, dist)  # the objects of this rank's batch, in its order
                 keep = torch.tensor(kept_objects(train_store.class_names, share, cfg.distill_skip),
                                     device=batch.occupied.device)
-                distill = Distillation(teacher, keep, cfg.distill_weight)
+                distill = Distillation(teacher.model, keep, cfg.distill_weight)
             loss, value, parts = batch_loss(model, batch, counts, names, inputs, cfg.class_weight, use_amp, dist,
                                             distill)
             if cfg.anchor_weight > 0:  # every rank adds the same term: DDP's gradient mean keeps it as is
