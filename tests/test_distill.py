@@ -142,3 +142,91 @@ def test_train_refuses_a_teacher_built_for_other_grids(tiny_run, capsys, flags, 
     args = [a for a in common if a not in ("--resolution", "16")] if "--resolution" in flags else common
     _assert_refused(capsys, ["train", str(data), "--out", str(root / "other.pt"), "--epochs", "1", "--distill",
                              str(start), *flags, *args], root / "other.pt", message)
+
+
+def test_turned_cloud_turns_centres_and_covariances_and_keeps_view_dependent_energy():
+    """R·μ and R Σ Rᵀ, written out in float64 here, for a random proper rotation; the SH energy channel the
+    network reads is the same before and after."""
+    from pixie_gs.dataset.teacher_pool import turned_cloud
+    from pixie_gs.field import per_gaussian_channels
+    from pixie_gs.splat import SplatCloud
+
+    rng = np.random.default_rng(11)
+    n = 50
+    cloud = SplatCloud.from_arrays(rng.normal(size=(n, 3)), rng.normal(-3, 0.5, (n, 3)), rng.normal(size=(n, 4)),
+                                   rng.normal(size=n), rng.normal(size=(n, 3)), rng.normal(0, 0.2, (n, 45)))
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    rot = q * np.sign(np.linalg.det(q))
+    out = turned_cloud(cloud, rot)
+    cov = cloud.covariances().astype(np.float64)
+    assert np.allclose(out.means, cloud.means.astype(np.float64) @ rot.T, atol=1e-5)
+    assert np.allclose(out.covariances(), rot @ cov @ rot.T, atol=1e-6 * np.abs(cov).max())
+    assert np.allclose(per_gaussian_channels(out, [])[0], per_gaussian_channels(cloud, [])[0])
+
+
+def test_teacher_pool_turns_each_object_upright_and_labels_it_as_training_reads_it(tiny_run, tmp_path):
+    """A generated mug written lying on its side (its up declared +y, as `pixie convert` declares a glTF's):
+    the pool object stands upright again (its height along z is the mug's), is thinned to the cap, carries the
+    teacher's materials of that very object read z-up (what the label loss and the distillation term see),
+    and the source file is left as it was; a second pool into the same folder is refused."""
+    import hashlib
+
+    from pixie_gs.annotate import annotate_cloud
+    from pixie_gs.cli.main import main
+    from pixie_gs.dataset.loader import list_objects, load_object
+    from pixie_gs.dataset.teacher_pool import POOL_CLASS, make_pool
+    from pixie_gs.errors import InputError
+
+    _, _, start, _ = tiny_run
+    assert main(["generate", str(tmp_path / "src"), "--count", "1", "--split", "test", "--gaussians", "3000",
+                 "--classes", "mugs", "--clean", "-q"]) == 0
+    upright, _ = load_object(list_objects(tmp_path / "src", "test")[0])
+    z_to_y = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # +z → +y
+    from pixie_gs.dataset.teacher_pool import turned_cloud
+
+    lying = turned_cloud(upright, z_to_y)
+    lying.comments = ["pixie up 0 1 0"]
+    src = tmp_path / "lying_mug.ply"
+    lying.write(src)
+    before = hashlib.sha256(src.read_bytes()).hexdigest()
+    index = make_pool(tmp_path / "pool", [src], str(start), "cpu", max_gaussians=1000)
+    assert hashlib.sha256(src.read_bytes()).hexdigest() == before
+    assert index["count"] == 1 and index["objects"][0]["class"] == POOL_CLASS
+    obj, record = load_object(list_objects(tmp_path / "pool", "train")[0])
+    assert record["class"] == POOL_CLASS and len(obj) == 1000
+    height = np.ptp(upright.means[:, 2])
+    assert abs(np.ptp(obj.means[:, 2]) - height) < 0.1 * height, (np.ptp(obj.means, 0), height)
+    read = annotate_cloud(obj, str(start), "cpu", up="z").get_materials()
+    for got, want in zip(obj.get_materials(), read):
+        assert np.array_equal(got, want)
+    assert set(np.unique(obj.get("part_id"))) == {0}
+    with pytest.raises(InputError, match="already holds a teacher pool"):
+        make_pool(tmp_path / "pool", [src], str(start), "cpu", max_gaussians=1000)
+
+
+def test_train_adds_the_teacher_pool_repeated_and_distils_on_it(tiny_run, tmp_path):
+    """`--teacher-pool P --teacher-pool-repeat 3`: the run trains on the 4 generated objects and 3 listings of
+    P's one object; with every generated kind skipped, the distillation term comes from the pool alone."""
+    from pixie_gs.cli.main import main
+    from pixie_gs.dataset.teacher_pool import make_pool
+
+    root, data, start, common = tiny_run
+    make_pool(tmp_path / "pool", [_a_generated_object(tmp_path)], str(start), "cpu", max_gaussians=800)
+    out = tmp_path / "pooled.pt"
+    assert main(["train", str(data), "--out", str(out), "--init", str(start), "--epochs", "1",
+                 "--teacher-pool", str(tmp_path / "pool"), "--teacher-pool-repeat", "3", "--distill", str(start),
+                 "--distill-skip", "sport_balls,soda_cans", "--lr", "5e-3", *common]) == 0
+    meta = load_checkpoint(out).meta
+    assert meta["train_objects"] == 4 + 3
+    assert meta["train_config"]["teacher_pool_repeat"] == 3
+    assert all(row["train_distill"] > 0 for row in meta["history"])
+
+
+def _a_generated_object(folder) -> str:
+    """One generated stone at 2,000 Gaussians (a kind the tiny run never trains on), as a pool source."""
+    from pixie_gs.cli.main import main
+    from pixie_gs.dataset.loader import list_objects
+
+    assert main(["generate", str(folder / "stone"), "--count", "1", "--split", "test", "--gaussians", "2000",
+                 "--classes", "stones", "-q"]) == 0
+    return str(list_objects(folder / "stone", "test")[0])

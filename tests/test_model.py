@@ -660,10 +660,13 @@ def test_train_refuses_a_network_the_checkpoint_loader_would_refuse(tmp_path, ca
     (["--distill-weight", "2"], "--distill-weight needs --distill"),
     (["--distill", "missing.pt"], "missing.pt"),
     (["--distill", "x.pt", "--distill-weight", "-1"], "--distill-weight must be a finite number ≥ 0"),
-    (["--distill", "x.pt", "--distill-weight", "inf"], "--distill-weight must be a finite number ≥ 0")])
+    (["--distill", "x.pt", "--distill-weight", "inf"], "--distill-weight must be a finite number ≥ 0"),
+    (["--teacher-pool-repeat", "0"], "--teacher-pool-repeat must be ≥ 1"),
+    (["--teacher-pool-repeat", "2"], "--teacher-pool-repeat needs --teacher-pool"),
+    (["--teacher-pool", "no_pool_here"], "no_pool_here")])
 def test_train_refuses_a_fine_tune_term_it_cannot_apply(tmp_path, capsys, args, message):
-    """`--anchor-weight` and `--distill` (tests/test_distill.py) with what they need missing or out of range:
-    one line, no checkpoint."""
+    """`--anchor-weight`, `--distill` and `--teacher-pool` (tests/test_distill.py) with what they need missing or
+    out of range: one line, no checkpoint."""
     from pixie_gs.cli.main import main
 
     rc = main(["train", str(tmp_path), "--out", str(tmp_path / "m.pt"), *args, "--device", "cpu", "-q"])

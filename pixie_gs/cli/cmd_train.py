@@ -73,6 +73,12 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--distill-skip", default="", metavar="KINDS",
                    help="with --distill: object kinds (classes.json names, comma-separated) left to the labels "
                    "alone, e.g. the kinds the teacher never saw")
+    p.add_argument("--teacher-pool", default=None, metavar="DIR",
+                   help="add the train split of DIR (real splats labelled by a teacher: python -m "
+                   "pixie_gs.dataset.teacher_pool) to the training objects; with --distill the student is also held "
+                   "to the teacher's outputs on them (kind real_pool)")
+    p.add_argument("--teacher-pool-repeat", type=int, default=1, metavar="K",
+                   help="with --teacher-pool: list each of its objects K times per epoch (each augmented on its own)")
     p.add_argument("--keep-epochs", action="store_true",
                    help="also write every epoch's weights as CKPT_STEM.epochNN.pt (to score each on real captures, "
                    "e.g. benchmarks/bench_real_set.py, before picking one)")
@@ -133,6 +139,10 @@ def run(args: argparse.Namespace) -> int:
     if (distill_skip or args.distill_weight is not None) and not args.distill:
         raise InputError(f"{'--distill-skip' if distill_skip else '--distill-weight'} needs --distill (the teacher "
                          "checkpoint)")
+    if args.teacher_pool_repeat < 1:
+        raise InputError(f"--teacher-pool-repeat must be ≥ 1 (got {args.teacher_pool_repeat})")
+    if args.teacher_pool_repeat != 1 and not args.teacher_pool:
+        raise InputError("--teacher-pool-repeat needs --teacher-pool (the pool to repeat)")
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, time_budget_s=args.time_budget_s,
                       seed=args.seed, augment=not args.no_augment, workers=args.workers,
                       tilt_max_deg=args.tilt_deg, tilt_share=args.tilt_share, margin_max=args.frame_margin_max,
@@ -141,6 +151,7 @@ def run(args: argparse.Namespace) -> int:
                       init_from=args.init, objects_per_build=args.build_objects, keep_epochs=args.keep_epochs,
                       anchor_weight=args.anchor_weight, distill_from=args.distill,
                       distill_weight=distill_weight, distill_skip=distill_skip,
+                      teacher_pool=args.teacher_pool, teacher_pool_repeat=args.teacher_pool_repeat,
                       model={"base_channels": args.base_channels, "multipliers": mults, "res_blocks": args.res_blocks,
                              "context_width": args.context_width},
                       features={"resolution": args.resolution})

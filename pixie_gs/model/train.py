@@ -55,6 +55,8 @@ class TrainConfig:
     distill_from: str | None = None  # teacher checkpoint whose outputs the student is held near (distill.py)
     distill_weight: float = 1.0  # loss += w · distillation term (with distill_from)
     distill_skip: list[str] = field(default_factory=list)  # object kinds left out of the distillation term
+    teacher_pool: str | None = None  # a dataset of teacher-labelled real splats added to the train split
+    teacher_pool_repeat: int = 1  # … each of its objects listed this many times per epoch
     keep_epochs: bool = False  # also write every epoch's weights (epoch_checkpoint_path) to pick among them later
     model: dict = field(default_factory=dict)  # ModelConfig overrides (base_channels, multipliers, …)
     objects_per_build: int | None = None  # grids built per call, several steps' worth (None: by device)
@@ -199,7 +201,7 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
     over the ranks; rank 0 alone validates and writes `out`, its state file and the log."""
     import torch
 
-    from .data import DeviceStore, load_split
+    from .data import DeviceStore, load_split, split_paths
 
     if cfg.input_mode not in INPUT_MODES:
         raise InputError(f"unknown input mode '{cfg.input_mode}' (choose from {', '.join(INPUT_MODES)})")
@@ -220,6 +222,8 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         unknown = sorted(set(cfg.distill_skip) - kinds)
         if unknown:
             raise InputError(f"--distill-skip: no training object of kind {', '.join(unknown)}", index)
+    if cfg.teacher_pool:  # named before the data load (minutes on a large set)
+        split_paths(cfg.teacher_pool, "train")
     teacher = load_teacher(cfg.distill_from, device) if cfg.distill_from else None
     t0 = time.perf_counter()
     torch.manual_seed(cfg.seed)
@@ -227,6 +231,10 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
     extra = list(state["extra_names"]) if state else None
     train_records, extra = load_split(data_dir, "train", extra, cfg.limit_train, cfg.workers)
     val_records, _ = load_split(data_dir, "val", extra, cfg.limit_val, cfg.workers)
+    if cfg.teacher_pool:
+        pool, _ = load_split(cfg.teacher_pool, "train", extra, None, cfg.workers)
+        train_records = train_records + pool * cfg.teacher_pool_repeat
+        stage(f"teacher pool {cfg.teacher_pool}: {len(pool)} objects, each listed {cfg.teacher_pool_repeat} times")
     ranges = training_label_ranges(train_records)
     train_store = DeviceStore(train_records, device)
     val_store = DeviceStore(val_records, device)
