@@ -11,19 +11,6 @@ OUT=${1:?usage: rh_fetch.sh OUT_DIR [MIRROR_ROOT]}
 M=${2:-/work/.mirror}
 mkdir -p "$OUT"
 source "$(dirname "$0")/../mirror_files.sh"   # show REPO COMMIT PATH DEST
-# gltf_with_uris REPO COMMIT DIR_IN_REPO NAME.gltf DEST_DIR: the .gltf and every "uri" it names (no data: URIs)
-gltf_with_uris() {
-  show "$1" "$2" "$3/$4" "$5/$4"
-  python3 - "$5/$4" <<'PY' | while IFS= read -r uri; do show "$1" "$2" "$3/$uri" "$5/$uri"; done
-import json, sys
-doc = json.load(open(sys.argv[1]))
-for entry in doc.get("buffers", []) + doc.get("images", []):
-    uri = entry.get("uri", "")
-    if uri and not uri.startswith("data:"):
-        print(uri)
-PY
-}
-
 PC=playcanvas+engine; EX=examples/assets
 show $PC 7b4f9c0c08a3a22e9c9197a300ab75ca613ed24f $EX/splats/biker.compressed.ply "$OUT/biker.compressed.ply"
 show $PC 54aa6105d70f17b238e0f6c1cb69abe460b8712a $EX/models/cat.glb "$OUT/cat.glb"

@@ -5,8 +5,8 @@ redplant is lost after one epoch of r62; docs/model_card.md), and holding the te
 *generated* objects of the old kinds did not hold them (docs/training.md, the CPU proxies of `--distill`).
 This pool brings captures of the real world into the training set with the teacher's own readings as their
 labels. Each source is prepared as `pixie annotate` prepares a capture (floaters, up, ground, objects), each
-object turned upright (its up vector to +z, as the network sees it), cut to its robust box, thinned to at
-most `max_gaussians` and labelled per Gaussian with the teacher's materials. With
+object turned upright (its up vector to +z, as the network sees it), cut to its robust box, optionally thinned
+and labelled per Gaussian with the teacher's materials. With
 `pixie train --distill TEACHER` the student is also held to the teacher's soft outputs on these objects
 (their kind is `POOL_CLASS`, not skipped). Sources must be kept apart from every benchmark set.
 
@@ -26,6 +26,7 @@ import numpy as np
 
 from ..atomic import StagedDirectory
 from ..errors import InputError
+from ..materials import MATERIAL_NAMES
 from ..splat import SplatCloud, quat_to_rotmat, rotmat_to_quat
 from .generate import INDEX_NAME
 
@@ -54,12 +55,15 @@ def turned_cloud(cloud: SplatCloud, rotation: np.ndarray) -> SplatCloud:
     return out
 
 
-def labelled_objects(cloud: SplatCloud, checkpoint: str | None, device: str, max_gaussians: int,
+def labelled_objects(cloud: SplatCloud, checkpoint: str | None, device: str, max_gaussians: int | None = None,
                      seed: int = 0) -> list[SplatCloud]:
-    """The prepared objects of one capture, upright, thinned at random to at most `max_gaussians` each and
-    labelled with the teacher's materials *on that thinned upright object* (material_id, E Pa, ν, density
-    kg/m³; part_id 0): the label loss and the distillation term then ask for the same reading (the teacher
-    reads a capture thinned from 100k to 12k Gaussians up to 0.9 decades of E apart from the whole)."""
+    """The prepared objects of one capture, upright, thinned at random to at most `max_gaussians` each (None:
+    all kept) and labelled with the teacher's materials *on that upright object* (material_id, E Pa, ν,
+    density kg/m³; part_id 0), so the label loss and the distillation term ask for the same reading.
+
+    Thinning changes the reading: r58 reads a 100k-Gaussian splat thinned to 12k up to 0.85 decades of E apart,
+    and a converted bin and shelves as metal whole but elastic at 25k (docs/model_card.md, "Candidates r64 and
+    r65"); it only serves to make a pool small enough to carry."""
     from ..annotate import annotate_cloud
     from ..prepare import prepare_cloud
 
@@ -71,7 +75,7 @@ def labelled_objects(cloud: SplatCloud, checkpoint: str | None, device: str, max
     for obj in scene.objects:
         mine = np.nonzero(object_id == obj.object_id)[0]
         keep = upright_object(cloud.subset(mine), rotation, obj.fit_box_up)
-        if len(keep) > max_gaussians:
+        if max_gaussians is not None and len(keep) > max_gaussians:
             keep = np.sort(rng.choice(keep, max_gaussians, replace=False))
         if len(keep) == 0:
             continue
@@ -85,8 +89,18 @@ def labelled_objects(cloud: SplatCloud, checkpoint: str | None, device: str, max
     return objects
 
 
+def teacher_majority(entries: list[dict]) -> dict[str, int]:
+    """How many pool objects the teacher reads mostly as each material class. Why: a pool read as one class
+    teaches that class for everything that looks like it (r65: an all-elastic pool pulled the converted-mesh
+    WaterBottle off metal; docs/model_card.md), so the mix is written into the index and printed."""
+    mix: dict[str, int] = {}
+    for e in entries:
+        mix[e["teacher_class"]] = mix.get(e["teacher_class"], 0) + 1
+    return dict(sorted(mix.items(), key=lambda kv: -kv[1]))
+
+
 def make_pool(out_dir: str | Path, sources: list[str | Path], checkpoint: str | None = None, device: str = "cpu",
-              max_gaussians: int = 16000, seed: int = 0) -> dict:
+              max_gaussians: int | None = None, seed: int = 0) -> dict:
     """Write OUT_DIR/train (objects, label records, index.json) from `sources`; returns the index.
 
     The split is built beside its place and moved in whole, so a source that fails (unreadable, or no object
@@ -115,10 +129,11 @@ def make_pool(out_dir: str | Path, sources: list[str | Path], checkpoint: str | 
                           "teacher_class_counts": {str(c): int(n) for c, n in zip(ids, counts)}}
                 (staging.path / f"{stem}.json").write_text(json.dumps(record, indent=1) + "\n")
                 entries.append({"index": record["index"], "class": POOL_CLASS, "file": record["file"],
-                                "gaussians": len(obj), "parts": ["teacher"], "source": Path(source).name})
+                                "gaussians": len(obj), "parts": ["teacher"], "source": Path(source).name,
+                                "teacher_class": MATERIAL_NAMES.get(int(ids[np.argmax(counts)]), "unknown")})
         index = {"format_version": 1, "split": POOL_SPLIT, "count": len(entries), "classes": [POOL_CLASS],
                  "class_counts": {POOL_CLASS: len(entries)}, "teacher": str(checkpoint or "shipped default"),
-                 "objects": entries}
+                 "teacher_majority": teacher_majority(entries), "objects": entries}
         (staging.path / INDEX_NAME).write_text(json.dumps(index, indent=1) + "\n")
         staging.commit()
     except BaseException:
@@ -133,17 +148,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("out_dir")
     parser.add_argument("sources", nargs="+", help="splat files (any format pixie reads)")
     parser.add_argument("--checkpoint", default=None, help="the teacher (default: the shipped checkpoint)")
-    parser.add_argument("--max-gaussians", type=int, default=16000, help="per object, thinned at random")
+    parser.add_argument("--max-gaussians", type=int, default=None,
+                        help="thin each object at random to at most this many Gaussians (default: keep all; thinning "
+                        "changes the teacher's reading and serves only to make a pool small enough to carry)")
     parser.add_argument("--device", default="cpu")
     args = parser.parse_args(argv)
     try:
-        if args.max_gaussians < 1:
+        if args.max_gaussians is not None and args.max_gaussians < 1:
             raise InputError(f"--max-gaussians must be at least 1 (got {args.max_gaussians})")
         index = make_pool(args.out_dir, args.sources, args.checkpoint, args.device, args.max_gaussians)
     except InputError as err:
         print(f"error: {err}", file=sys.stderr)
         return 1
-    print(f"teacher pool: {index['count']} objects from {len(args.sources)} sources in {args.out_dir}")
+    mix = ", ".join(f"{name} {n}" for name, n in index["teacher_majority"].items())
+    print(f"teacher pool: {index['count']} objects from {len(args.sources)} sources in {args.out_dir}; "
+          f"the teacher reads them mostly as {mix}")
     return 0
 
 
