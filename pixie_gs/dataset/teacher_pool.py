@@ -1,4 +1,4 @@
-"""A training split of real splats and scans labelled by a teacher checkpoint, and its merge into a dataset.
+"""A training split of real splats and scans labelled by a teacher checkpoint (`pixie train --teacher-pool`).
 
 Why: every fine-tune on generated objects alone moved the readings of real captures (the development set's
 redplant is lost after one epoch of r62; docs/model_card.md), and holding the teacher's outputs on
@@ -35,7 +35,7 @@ POOL_SPLIT = "train"
 BOX_SLACK = 0.02  # the robust box is widened by this share of its size before cutting (keeps the rim)
 
 
-def upright_object(cloud: SplatCloud, rotation: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+def inside_turned_box(cloud: SplatCloud, rotation: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """Indices of `cloud`'s Gaussians whose centres, turned by `rotation` (3,3), lie in `box` (lo, hi; the
     turned frame) widened by BOX_SLACK of its size on every side."""
     lo, hi = np.asarray(box[0], np.float64), np.asarray(box[1], np.float64)
@@ -74,7 +74,7 @@ def labelled_objects(cloud: SplatCloud, checkpoint: str | None, device: str, max
     objects = []
     for obj in scene.objects:
         mine = np.nonzero(object_id == obj.object_id)[0]
-        keep = upright_object(cloud.subset(mine), rotation, obj.fit_box_up)
+        keep = inside_turned_box(cloud.subset(mine), rotation, obj.fit_box_up)
         if max_gaussians is not None and len(keep) > max_gaussians:
             keep = np.sort(rng.choice(keep, max_gaussians, replace=False))
         if len(keep) == 0:
