@@ -56,23 +56,6 @@ def test_kept_objects_leaves_out_the_skipped_kinds():
     assert kept_objects(names, [0, 1], []) == [True, True]
 
 
-@pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory):
-    """Two kinds of objects, a start checkpoint trained one epoch on them; returns (folder, data, start, flags)."""
-    from pixie_gs.cli.main import main
-
-    root = tmp_path_factory.mktemp("distill")
-    data = root / "data"
-    for split, count in (("train", 4), ("val", 2)):
-        assert main(["generate", str(data), "--count", str(count), "--split", split, "--gaussians", "400",
-                     "--classes", "sport_balls,soda_cans", "-q"]) == 0
-    common = ["--device", "cpu", "--resolution", "16", "--base-channels", "4", "--multipliers", "1,2",
-              "--batch-size", "2", "--seed", "3", "-q"]
-    start = root / "start.pt"
-    assert main(["train", str(data), "--out", str(start), "--epochs", "1", *common]) == 0
-    return root, data, start, common
-
-
 def _outputs(path, data) -> torch.Tensor:
     """The checkpoint's class probabilities and E, ν, ρ on the val objects' occupied voxels (no augmentation)."""
     from pixie_gs.model.batch import build_batch

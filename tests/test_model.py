@@ -675,20 +675,13 @@ def test_train_refuses_a_fine_tune_term_it_cannot_apply(tmp_path, capsys, args, 
     assert not (tmp_path / "m.pt").exists()
 
 
-def test_anchor_weight_keeps_a_fine_tune_near_its_start_and_the_log_measures_the_drift(tmp_path):
+def test_anchor_weight_keeps_a_fine_tune_near_its_start_and_the_log_measures_the_drift(tiny_run, tmp_path):
     """Fine-tuning the same start weights on the same data and seed, `--anchor-weight` (L2-SP) ends several
     times closer to the start than no anchor; each epoch's logged `drift_sq` is Σ (θ − θ_start)² of that
     epoch's weights, recomputed here from the two checkpoint files; `--resume` measures from the same start."""
     from pixie_gs.cli.main import main
 
-    data = tmp_path / "data"
-    for split, count in (("train", 4), ("val", 2)):
-        assert main(["generate", str(data), "--count", str(count), "--split", split, "--gaussians", "400",
-                     "--classes", "sport_balls,soda_cans", "-q"]) == 0
-    common = ["--device", "cpu", "--resolution", "16", "--base-channels", "4", "--multipliers", "1,2",
-              "--batch-size", "2", "--seed", "3", "-q"]
-    start = tmp_path / "start.pt"
-    assert main(["train", str(data), "--out", str(start), "--epochs", "1", *common]) == 0
+    _, data, start, common = tiny_run
 
     def distance(a, b) -> float:
         wa, wb = a.model.state_dict(), b.model.state_dict()

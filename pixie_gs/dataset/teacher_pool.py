@@ -27,6 +27,7 @@ import numpy as np
 from ..atomic import StagedDirectory
 from ..errors import InputError
 from ..materials import MATERIAL_NAMES
+from ..prepare.updir import turn
 from ..splat import SplatCloud, quat_to_rotmat, rotmat_to_quat
 from .generate import INDEX_NAME
 
@@ -35,14 +36,11 @@ POOL_SPLIT = "train"
 BOX_SLACK = 0.02  # the robust box is widened by this share of its size before cutting (keeps the rim)
 
 
-def inside_turned_box(cloud: SplatCloud, rotation: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """Indices of `cloud`'s Gaussians whose centres, turned by `rotation` (3,3), lie in `box` (lo, hi; the
-    turned frame) widened by BOX_SLACK of its size on every side."""
+def inside_box(points: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Indices of the `points` (N,3) that lie in `box` (lo, hi) widened by BOX_SLACK of its size on every side."""
     lo, hi = np.asarray(box[0], np.float64), np.asarray(box[1], np.float64)
     pad = BOX_SLACK * (hi - lo)
-    turned = cloud.means.astype(np.float64) @ rotation.T
-    inside = np.all((turned >= lo - pad) & (turned <= hi + pad), axis=1)
-    return np.nonzero(inside)[0]
+    return np.nonzero(np.all((points >= lo - pad) & (points <= hi + pad), axis=1))[0]
 
 
 def turned_cloud(cloud: SplatCloud, rotation: np.ndarray) -> SplatCloud:
@@ -50,7 +48,7 @@ def turned_cloud(cloud: SplatCloud, rotation: np.ndarray) -> SplatCloud:
     View-dependent colour is kept as stored: its energy per degree, the only SH feature the network reads,
     does not change under a rotation."""
     out = cloud.copy()
-    out.means = (cloud.means.astype(np.float64) @ rotation.T).astype(np.float32)
+    out.means = turn(cloud.means.astype(np.float64), rotation).astype(np.float32)
     out.rotations = rotmat_to_quat(rotation[None] @ quat_to_rotmat(cloud.quats)).astype(np.float32)
     return out
 
@@ -74,15 +72,18 @@ def labelled_objects(cloud: SplatCloud, checkpoint: str | None, device: str, max
     objects = []
     for obj in scene.objects:
         mine = np.nonzero(object_id == obj.object_id)[0]
-        keep = inside_turned_box(cloud.subset(mine), rotation, obj.fit_box_up)
+        if len(mine) == 0:
+            continue
+        plain = cloud.subset(mine)
+        upright = turned_cloud(SplatCloud.from_arrays(plain.means, plain.log_scales, plain.rotations,
+                                                      plain.opacity_logits, plain.sh_dc, plain.sh_rest),
+                               rotation)  # without the capture's own extra properties
+        keep = inside_box(upright.means.astype(np.float64), obj.fit_box_up)
         if max_gaussians is not None and len(keep) > max_gaussians:
             keep = np.sort(rng.choice(keep, max_gaussians, replace=False))
         if len(keep) == 0:
             continue
-        plain = cloud.subset(mine[keep])
-        bare = SplatCloud.from_arrays(plain.means, plain.log_scales, plain.rotations, plain.opacity_logits,
-                                      plain.sh_dc, plain.sh_rest)  # without the capture's own extra properties
-        out = turned_cloud(bare, rotation)
+        out = upright.subset(keep)
         out.set_materials(*annotate_cloud(out, checkpoint, device, up="z").get_materials())
         out.set("part_id", np.zeros(len(out)), np.int32)
         objects.append(out)
