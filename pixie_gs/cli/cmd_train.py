@@ -64,6 +64,9 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--anchor-weight", type=float, default=0.0, metavar="W",
                    help="with --init: add W · Σ (θ − θ_init)² to the loss (L2-SP), keeping a fine-tune near its start "
                    "weights; every epoch logs that sum as drift_sq (default 0: no penalty)")
+    p.add_argument("--freeze", default="", metavar="PARTS",
+                   help="comma-separated network parts kept at --init's weights: 'encoder' (everything up to the "
+                        "bottleneck) or part names (projector, stem, down_blocks, …); default: none")
     p.add_argument("--distill", default=None, metavar="CKPT",
                    help="hold the outputs near this checkpoint's: add W · (KL of the class distributions + squared "
                    "difference of E, ν, ρ, normalised) on the occupied voxels of every training object whose kind "
@@ -93,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     from ..devices import resolve_torch_device
     from ..errors import InputError
     from ..model import distributed
-    from ..model.train import TrainConfig, train
+    from ..model.train import TrainConfig, frozen_part_names, train
     from ..progress import set_quiet
 
     try:
@@ -139,6 +142,10 @@ def run(args: argparse.Namespace) -> int:
     if (distill_skip or args.distill_weight is not None) and not args.distill:
         raise InputError(f"{'--distill-skip' if distill_skip else '--distill-weight'} needs --distill (the teacher "
                          "checkpoint)")
+    freeze = [k for k in (v.strip() for v in args.freeze.split(",")) if k]
+    frozen_part_names(freeze)
+    if freeze and not args.init:
+        raise InputError("--freeze needs --init (the weights to keep)")
     if args.teacher_pool_repeat < 1:
         raise InputError(f"--teacher-pool-repeat must be ≥ 1 (got {args.teacher_pool_repeat})")
     if args.teacher_pool_repeat != 1 and not args.teacher_pool:
@@ -149,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
                       decal_share=args.decal_share, hue_share=args.hue_share,
                       limit_train=args.limit_train, limit_val=args.limit_val, input_mode=args.inputs,
                       init_from=args.init, objects_per_build=args.build_objects, keep_epochs=args.keep_epochs,
-                      anchor_weight=args.anchor_weight, distill_from=args.distill,
+                      anchor_weight=args.anchor_weight, freeze=freeze, distill_from=args.distill,
                       distill_weight=distill_weight, distill_skip=distill_skip,
                       teacher_pool=args.teacher_pool, teacher_pool_repeat=args.teacher_pool_repeat,
                       model={"base_channels": args.base_channels, "multipliers": mults, "res_blocks": args.res_blocks,

@@ -27,7 +27,7 @@ from .distributed import SINGLE, DistContext, barrier, from_main, global_batch_l
 from .evaluate import evaluate_store
 from .predict import grid_channel_names, object_feature_summary, select_inputs
 from .step_batches import default_objects_per_build, step_batches
-from .unet import MaterialUNet, ModelConfig, masked_loss
+from .unet import DECODER_PARTS, ENCODER_PARTS, MaterialUNet, ModelConfig, masked_loss
 
 
 @dataclass
@@ -52,6 +52,7 @@ class TrainConfig:
     input_mode: str = "full"
     init_from: str | None = None  # start from this checkpoint's weights (same network config), fresh optimiser
     anchor_weight: float = 0.0  # L2-SP: loss += w · Σ (θ − θ_init)² over the weights (needs init_from)
+    freeze: list[str] = field(default_factory=list)  # network parts (unet.ENCODER_PARTS…) kept at init_from's weights
     distill_from: str | None = None  # teacher checkpoint whose outputs the student is held near (distill.py)
     distill_weight: float = 1.0  # loss += w · distillation term (with distill_from)
     distill_skip: list[str] = field(default_factory=list)  # object kinds left out of the distillation term
@@ -158,6 +159,32 @@ def batch_loss(model, batch: Batch, counts: bool, names: list[str], inputs: list
     return loss, value, parts
 
 
+def frozen_part_names(parts: list[str]) -> list[str]:
+    """The network's top-level parts that `parts` names ("encoder" is every part of unet.ENCODER_PARTS);
+    a one-line InputError for a name that is no part (checked before any data is loaded)."""
+    names = [n for part in parts for n in (ENCODER_PARTS if part == "encoder" else (part,))]
+    unknown = [n for n in names if n not in ENCODER_PARTS + DECODER_PARTS]
+    if unknown:
+        raise InputError(f"--freeze: no network part named {', '.join(unknown)} (parts: encoder, "
+                         f"{', '.join(ENCODER_PARTS + DECODER_PARTS)})")
+    return names
+
+
+def freeze_parts(net, parts: list[str]) -> int:
+    """Stop gradients into the named top-level parts of `net`, so their weights stay as loaded; returns how many
+    parameters are left to train. Why: the real captures' readings moved with the encoder's weights, not the
+    decoder's (docs/model_card.md, "Where the real readings drift"), so a fine-tune of the decoder alone can
+    learn new kinds from the features the start already reads."""
+    names = set(frozen_part_names(parts))
+    for name, p in net.named_parameters():
+        if name.split(".")[0] in names:
+            p.requires_grad_(False)
+    left = sum(p.numel() for p in net.parameters() if p.requires_grad)
+    if left == 0:
+        raise InputError("--freeze leaves no parameter to train")
+    return left
+
+
 def squared_distance(net, anchor: dict):
     """Σ (θ − θ_anchor)² over `net`'s floating-point parameters (a differentiable 0-d tensor).
 
@@ -262,12 +289,18 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         check_teacher_fits(teacher, inputs, spec)
         stage(f"distilling from {cfg.distill_from} (weight {cfg.distill_weight:g}"
               + (f"; not on {', '.join(cfg.distill_skip)})" if cfg.distill_skip else ")"))
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    trainable = freeze_parts(net, cfg.freeze) if cfg.freeze else sum(p.numel() for p in net.parameters())
+    opt = torch.optim.AdamW([p for p in net.parameters() if p.requires_grad], lr=cfg.lr,
+                            weight_decay=cfg.weight_decay)
     history: list[dict] = []
     start_epoch, step, elapsed_before, best = 0, 0, 0.0, -math.inf
     if state:
         net.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
+        try:
+            opt.load_state_dict(state["optimizer"])
+        except ValueError:  # its parameter groups differ in size: another --freeze than the run it continues
+            raise InputError("--resume: the training state was written with other --freeze parts than these",
+                             side) from None
         start_epoch, step = int(state["epoch"]), int(state["step"])
         elapsed_before, best = float(state["elapsed_s"]), float(state["best_score"])
         history = json.loads(state["history_json"])
@@ -293,7 +326,8 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
             "data_dir": str(data_dir), "history": history, "label_ranges": ranges, "processes": dist.world_size,
             "objects_per_build": per_build}
     where = f"{dist.world_size} processes ({device} on rank 0)" if dist.enabled else device
-    stage(f"training {sum(p.numel() for p in net.parameters())} parameters on {where}: "
+    frozen = f" ({', '.join(cfg.freeze)} frozen)" if cfg.freeze else ""
+    stage(f"training {trainable} of {sum(p.numel() for p in net.parameters())} parameters{frozen} on {where}: "
           f"{len(train_store)} train / {len(val_store)} val objects, inputs={cfg.input_mode} ({len(inputs)} channels)")
     t_train = time.perf_counter()
     summaries: list = []  # per-object grid statistics of the first batches (out-of-distribution score)
@@ -337,7 +371,7 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
                 summarised += cfg.batch_size if not dist.enabled else len(batch.means_unit)
             opt.zero_grad(set_to_none=True)
             loss.backward()
-            torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+            torch.nn.utils.clip_grad_norm_([p for p in net.parameters() if p.requires_grad], 1.0)
             opt.step()
             step += 1
             done += 1

@@ -87,6 +87,13 @@ class ObjectContext(nn.Module):
         return h + self.mlp(pooled)[:, :, None, None, None].to(h.dtype)
 
 
+# The network's top-level parts, input to output. ENCODER_PARTS read the grid down to the bottleneck (and the
+# object-context branch there); a fine-tune that freezes them (`pixie train --freeze encoder`) can change only
+# how features are decoded into materials, not which features a splat yields.
+ENCODER_PARTS = ("projector", "stem", "down_blocks", "downsamples", "middle", "context")
+DECODER_PARTS = ("upsamples", "up_blocks", "out_norm", "class_head", "physical_head")
+
+
 class MaterialUNet(nn.Module):
     """(B, C_in, N, N, N) feature grid → (logits (B, 8, N³…), physical (B, 3, N³…)); N divisible by 2^(levels−1)."""
 
