@@ -22,6 +22,7 @@ import torch
 from pixie_gs.cli.main import main
 from pixie_gs.errors import InputError
 from pixie_gs.model.distributed import SINGLE, DistContext, context_from_env, rank_share
+from pixie_gs.model.unet import ENCODER_PARTS
 
 TINY_CLI = ["--device", "cpu", "--resolution", "16", "--base-channels", "4", "--multipliers", "1,2", "-q"]
 TRAIN_OBJECTS = 5
@@ -104,6 +105,11 @@ def distilled_config(out: Path):
                        distill_skip=["soda_cans"])
 
 
+def frozen_config(out: Path):
+    """A fine-tune of ddp.pt with the encoder frozen: DDP reduces the decoder's gradients only."""
+    return tiny_config(init_from=str(out / "ddp.pt"), freeze=["encoder"])
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -182,6 +188,8 @@ def _worker(rank: int, world: int, port: int, data_dir: str, out_dir: str) -> No
         train_mod.train(data_dir, out / "anchored.pt", anchored_config(out / "ddp.pt"), device, dist=ctx)
         # distillation: each rank's term scaled by its share of the kept voxels
         train_mod.train(data_dir, out / "distilled.pt", distilled_config(out), device, dist=ctx)
+        # the encoder frozen (`--freeze encoder`)
+        train_mod.train(data_dir, out / "frozen.pt", frozen_config(out), device, dist=ctx)
         torch.save({"grads": grads, "built": built_main, "saved": saved, "weights": weights, "budget": budget},
                    out / f"rank{rank}.pt")
     finally:
@@ -303,16 +311,18 @@ def test_torchrun_cli_resumes_a_preempted_run(data, tmp_path):
     assert log == history
 
 
-@pytest.mark.parametrize("name,logged", [("anchored", "drift_sq"), ("distilled", "train_distill")])
+@pytest.mark.parametrize("name,logged", [("anchored", "drift_sq"), ("distilled", "train_distill"),
+                                         ("frozen", "drift_sq")])
 def test_fine_tune_terms_match_one_process(two_ranks, data, tmp_path, name, logged):
-    """`--anchor-weight` (each rank adds the same Σ (θ − θ_start)²) and `--distill` (each rank's term scaled by
-    its share of the kept voxels) under DDP: the run matches one process doing the same fine-tune epoch by
-    epoch, the logged term included."""
+    """`--anchor-weight` (each rank adds the same Σ (θ − θ_start)²), `--distill` (each rank's term scaled by
+    its share of the kept voxels) and `--freeze encoder` (the frozen parts outside DDP's reduction) under DDP:
+    the run matches one process doing the same fine-tune epoch by epoch, the logged term included."""
     from pixie_gs.model.train import train
     from pixie_gs.progress import set_quiet
 
     out, _ = two_ranks
-    config = anchored_config(out / "ddp.pt") if name == "anchored" else distilled_config(out)
+    config = {"anchored": anchored_config(out / "ddp.pt"), "distilled": distilled_config(out),
+              "frozen": frozen_config(out)}[name]
     set_quiet(True)
     try:
         meta = train(data, tmp_path / "one.pt", config, "cpu")
@@ -323,3 +333,6 @@ def test_fine_tune_terms_match_one_process(two_ranks, data, tmp_path, name, logg
     for a, b in zip(meta["history"], ddp_history, strict=True):
         for key in ("train_loss", "val_loss", logged):
             assert a[key] == pytest.approx(b[key], rel=1e-3, abs=1e-6), key
+    if name == "frozen":  # the ranks kept the encoder exactly as ddp.pt had it
+        start, done = (torch.load(out / f, weights_only=False)["state_dict"] for f in ("ddp.pt", "frozen.pt"))
+        assert all(torch.equal(done[k], v) for k, v in start.items() if k.split(".")[0] in ENCODER_PARTS)
