@@ -172,9 +172,9 @@ def frozen_part_names(parts: list[str]) -> list[str]:
 
 def freeze_parts(net, parts: list[str]) -> int:
     """Stop gradients into the named top-level parts of `net`, so their weights stay as loaded; returns how many
-    parameters are left to train. Why: the real captures' readings moved with the encoder's weights, not the
-    decoder's (docs/model_card.md, "Where the real readings drift"), so a fine-tune of the decoder alone can
-    learn new kinds from the features the start already reads."""
+    parameters are left to train. Why: a fine-tune of the decoder alone learns from the features the start
+    already reads; tried to learn new kinds without moving the real readings, it did not hold them either
+    (docs/model_card.md, "Candidates r66 and r67")."""
     names = set(frozen_part_names(parts))
     for name, p in net.named_parameters():
         if name.split(".")[0] in names:
