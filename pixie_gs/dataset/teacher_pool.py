@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -94,10 +95,7 @@ def teacher_majority(entries: list[dict]) -> dict[str, int]:
     """How many pool objects the teacher reads mostly as each material class. Why: a pool read as one class
     teaches that class for everything that looks like it (r65: an all-elastic pool pulled the converted-mesh
     WaterBottle off metal; docs/model_card.md), so the mix is written into the index and printed."""
-    mix: dict[str, int] = {}
-    for e in entries:
-        mix[e["teacher_class"]] = mix.get(e["teacher_class"], 0) + 1
-    return dict(sorted(mix.items(), key=lambda kv: -kv[1]))
+    return dict(Counter(e["teacher_class"] for e in entries).most_common())
 
 
 def make_pool(out_dir: str | Path, sources: list[str | Path], checkpoint: str | None = None, device: str = "cpu",

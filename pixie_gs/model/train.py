@@ -289,9 +289,9 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
         check_teacher_fits(teacher, inputs, spec)
         stage(f"distilling from {cfg.distill_from} (weight {cfg.distill_weight:g}"
               + (f"; not on {', '.join(cfg.distill_skip)})" if cfg.distill_skip else ")"))
-    trainable = freeze_parts(net, cfg.freeze) if cfg.freeze else sum(p.numel() for p in net.parameters())
-    opt = torch.optim.AdamW([p for p in net.parameters() if p.requires_grad], lr=cfg.lr,
-                            weight_decay=cfg.weight_decay)
+    trainable = freeze_parts(net, cfg.freeze)
+    params = [p for p in net.parameters() if p.requires_grad]  # all of them unless --freeze
+    opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
     history: list[dict] = []
     start_epoch, step, elapsed_before, best = 0, 0, 0.0, -math.inf
     if state:
@@ -371,7 +371,7 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
                 summarised += cfg.batch_size if not dist.enabled else len(batch.means_unit)
             opt.zero_grad(set_to_none=True)
             loss.backward()
-            torch.nn.utils.clip_grad_norm_([p for p in net.parameters() if p.requires_grad], 1.0)
+            torch.nn.utils.clip_grad_norm_(params, 1.0)
             opt.step()
             step += 1
             done += 1
