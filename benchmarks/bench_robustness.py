@@ -10,6 +10,8 @@ the prepared path compare with the clean object's prepared prediction):
   capture; `--logit-normal`: also the logit-normal N(−0.94, 2.6) the tests use);
 - floaters: 5 % extra Gaussians uniform in the object's box, and in that box grown by 25 % per side;
 - tilt: 30° about a random horizontal axis, annotated as is (+z up);
+- baked lighting: colours as a capture's cameras saw them under a sky and a sun, with self-shadowing, sheen
+  and highlights (pixie_gs/dataset/lighting.py, the generator's own draw for the object);
 - with `--prepared`, the grown-box floaters and the tilt also through the default `pixie annotate`
   path (prepare: floaters, up, objects), which is meant to remove the floaters and undo the tilt.
 
@@ -37,6 +39,8 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from test_robustness import (AGREEMENT_TARGET, CAPTURE_LOGIT_MEAN, CAPTURE_LOGIT_STD, agreement,  # noqa: E402
                              predict, tilted, with_f_rest, with_floaters, with_opacity_logits)
+
+from pixie_gs.dataset.lighting import bake_lighting  # noqa: E402
 
 REAL_CAPTURES = ("donut_fused.ply", "guitar.compressed.ply", "pool.ply", "redplant.ply")
 
@@ -73,6 +77,7 @@ def perturbations(clean, rng: np.random.Generator, real_logits: np.ndarray, prep
     if prepared:
         cases["5 % floaters, box +25 %, prepared"] = (cases["5 % floaters, box +25 %"][0], True)
         cases["30° tilt, prepared"] = (tilt, True)
+    cases["baked lighting"] = (bake_lighting(clean.subset(np.arange(n)), rng)[0], False)  # last: earlier draws stay
     return cases
 
 

@@ -37,7 +37,9 @@ VAL_TIERS=${VAL_TIERS:-"100:4000 100:12000 70:30000 30:60000"}
 TEST_TIERS=${TEST_TIERS:-"100:5000 100:20000 100:50000"}
 # REUSE_DATA=1 trains on a dataset an earlier run on this machine left in $DATA (made from the same tiers and
 # SEED, as $DATA/made_from.txt records), so a second fine-tune in one device session skips generation
-MADE_FROM="SEED=$SEED TRAIN_TIERS=$TRAIN_TIERS VAL_TIERS=$VAL_TIERS TEST_TIERS=$TEST_TIERS"
+# GEN_ARGS go to every `pixie generate` call (e.g. GEN_ARGS='--lighting 0' for a control without baked lighting)
+GEN_ARGS=${GEN_ARGS:-}
+MADE_FROM="SEED=$SEED TRAIN_TIERS=$TRAIN_TIERS VAL_TIERS=$VAL_TIERS TEST_TIERS=$TEST_TIERS GEN_ARGS=$GEN_ARGS"
 if [ "${REUSE_DATA:-0}" = 1 ]; then
   [ "$(cat "$DATA/made_from.txt" 2>/dev/null)" = "$MADE_FROM" ] \
     || { say "REUSE_DATA=1 but $DATA was not made from these tiers and seed (see $DATA/made_from.txt)"; exit 1; }
@@ -54,17 +56,19 @@ for split in train val test; do
     # "COUNT:GAUSSIANS:capture|clean:CLASS,CLASS" draws only those classes (a tier that leans on a few);
     # "COUNT:GAUSSIANS:pairs|clean-pairs" makes every object a pair (`generate --pairs 1`, half the Gaussians each);
     # "COUNT:GAUSSIANS:floors|clean-floors" stands every object on a floor disc (`generate --floors 1`);
-    # "COUNT:GAUSSIANS:leftovers" gives every capture-like object interior leftovers (`generate --leftovers 1`)
+    # "COUNT:GAUSSIANS:leftovers" gives every capture-like object interior leftovers (`generate --leftovers 1`);
+    # "COUNT:GAUSSIANS:lit" gives every capture-like object baked lighting (`generate --lighting 1`)
     IFS=: read -r n g look only <<<"$tier"
     gen_args=""
     case "${look:-capture}" in
       capture) ;; clean) gen_args="--clean" ;; pairs) gen_args="--pairs 1" ;; clean-pairs) gen_args="--clean --pairs 1" ;;
       floors) gen_args="--floors 1" ;; clean-floors) gen_args="--clean --floors 1" ;; leftovers) gen_args="--leftovers 1" ;;
-      *) say "unknown tier look '$look' in '$tier' (capture, clean, pairs, clean-pairs, floors, clean-floors, leftovers)"; exit 1 ;;
+      lit) gen_args="--lighting 1" ;;
+      *) say "unknown tier look '$look' in '$tier' (capture, clean, pairs, clean-pairs, floors, clean-floors, leftovers, lit)"; exit 1 ;;
     esac
     [ -n "${only:-}" ] && gen_args="$gen_args --classes $only"
     part="$DATA/parts/$split$k"
-    $P generate "$part" --count $n --split $split --seed $(( SEED * 100 + k )) --workers $WORKERS --gaussians $g $gen_args -q --force \
+    $P generate "$part" --count $n --split $split --seed $(( SEED * 100 + k )) --workers $WORKERS --gaussians $g $GEN_ARGS $gen_args -q --force \
       >>"$LOG" 2>&1 || { say "generate $split tier $tier failed"; exit 1; }
     parts+=("$part"); k=$((k + 1))
   done

@@ -41,6 +41,10 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
                    help="share of capture-like objects (0-1) holding interior leftovers: large opaque Gaussians "
                         "inside closed pieces, which no camera of a real capture sees to remove (default 0.3, "
                         "dataset/leftovers.py; none with --clean)")
+    p.add_argument("--lighting", type=float, default=None, metavar="SHARE",
+                   help="share of capture-like objects (0-1) whose colours carry baked lighting: shade from "
+                        "self-occlusion and one sun, glossy highlights (default 0.5, dataset/lighting.py; none "
+                        "with --clean)")
     p.add_argument("--force", action="store_true", help="replace an existing split")
     p.set_defaults(func=run)
     return p
@@ -49,6 +53,7 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
 def run(args: argparse.Namespace) -> int:
     from ..dataset.generate import generate_split
     from ..dataset.leftovers import LEFTOVER_OBJECT_SHARE
+    from ..dataset.lighting import LIGHTING_OBJECT_SHARE
     from ..dataset.preview import write_preview
     from ..errors import InputError
     from ..progress import stage
@@ -64,7 +69,8 @@ def run(args: argparse.Namespace) -> int:
                                workers=args.workers, n_gaussians=args.gaussians, table_path=args.table,
                                force=args.force, realistic=not args.clean,
                                pair_share=args.pairs, floor_share=args.floors,
-                               leftover_share=LEFTOVER_OBJECT_SHARE if args.leftovers is None else args.leftovers)
+                               leftover_share=LEFTOVER_OBJECT_SHARE if args.leftovers is None else args.leftovers,
+                               lighting_share=LIGHTING_OBJECT_SHARE if args.lighting is None else args.lighting)
     stage(f"wrote {split_dir}/index.json")
     if args.preview:
         shown = write_preview(args.out_dir, args.split, args.preview)

@@ -14,6 +14,7 @@ from ..convert import mesh_to_splat
 from ..errors import InputError
 from ..splat import SplatCloud
 from .leftovers import LEFTOVER_OBJECT_SHARE, interior_leftovers, leftover_rng
+from .lighting import LIGHTING_OBJECT_SHARE, bake_lighting, lighting_rng
 from .labels import ClassSpec, choose_parts, sample_part_values
 from .primitives import rotation_z
 from .realism import capture_like, draw_surface_only
@@ -54,13 +55,15 @@ def extent_record(cloud: SplatCloud) -> dict:
 
 
 def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int, realistic: bool = False,
-                 leftover_share: float = LEFTOVER_OBJECT_SHARE) -> tuple[SplatCloud, dict]:
+                 leftover_share: float = LEFTOVER_OBJECT_SHARE,
+                 lighting_share: float = LIGHTING_OBJECT_SHARE) -> tuple[SplatCloud, dict]:
     """One labelled object of class `spec` from `object_seed`, about `n_gaussians` Gaussians.
 
     realistic: make it look like a trained capture (pixie_gs/dataset/realism.py: opacity and shape
     spread, view-dependent colour, partial surfaces, floaters, a small tilt). leftover_share: the chance
     (0–1) that a realistic object holds interior leftovers (dataset/leftovers.py); the draw comes from the
-    leftovers' own RNG, so objects that draw none are the same for any share.
+    leftovers' own RNG, so objects that draw none are the same for any share. lighting_share: the chance
+    that a realistic object's colours carry baked lighting (dataset/lighting.py; its own RNG likewise).
 
     Returns the cloud (with material_id, E, nu, density, part_id per Gaussian) and its index
     record (class, parts with sampled values and counts, seed, shape parameters).
@@ -117,11 +120,14 @@ def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int, realistic:
             part_ids += [ids for _, ids in extra]
     cloud = SplatCloud.concatenate(clouds)
     part_id = np.concatenate(part_ids)
-    realism = None
+    realism, lighting = None, None
     if realistic:
         opaque = np.zeros(len(cloud), bool)
         opaque[len(cloud) - leftover_count:] = True  # the leftovers, appended last
         cloud, part_id, realism = capture_like(cloud, part_id, rng, keep_opacity=opaque)
+        light_rng = lighting_rng(object_seed)
+        if light_rng.random() < lighting_share:
+            cloud, lighting = bake_lighting(cloud, light_rng)
     by_id = {spec.part(name).part_id: name for name in present}
     n = len(cloud)
     material = np.empty(n, np.int32)
@@ -156,4 +162,6 @@ def build_object(spec: ClassSpec, object_seed: int, n_gaussians: int, realistic:
     }
     if realism is not None:
         record["realism"] = {**realism.to_dict(), "surface_only": surface_only}
+        if lighting is not None:
+            record["realism"]["lighting"] = lighting
     return cloud, record

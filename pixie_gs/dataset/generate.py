@@ -24,6 +24,7 @@ from ..progress import is_quiet, progress, set_quiet
 from .assemble import build_object, extent_record
 from .labels import ClassSpec, load_class_table
 from .leftovers import LEFTOVER_OBJECT_SHARE
+from .lighting import LIGHTING_OBJECT_SHARE
 from .floor import floor_record, with_floor
 from .pairs import MIN_PAIR_GAUSSIANS, build_pair
 
@@ -99,6 +100,7 @@ class ObjectTask:
     partner: str | None = None  # the partner's category: this object is a pair (dataset/pairs.py)
     floor_seed: int | None = None  # the object stands on a floor drawn from this seed (dataset/floor.py)
     leftover_share: float = LEFTOVER_OBJECT_SHARE  # chance of interior leftovers (dataset/leftovers.py)
+    lighting_share: float = LIGHTING_OBJECT_SHARE  # chance of baked lighting (dataset/lighting.py)
 
 
 _TABLE_CACHE: dict[str | None, dict[str, ClassSpec]] = {}
@@ -117,11 +119,12 @@ def write_object(task: ObjectTask) -> dict:
     set_quiet(True)  # per-piece bars (e.g. the converter's interior fill) would bury the object bar
     try:
         if task.partner is None:
-            cloud, record = build_object(spec, task.seed, task.n_gaussians, task.realistic, task.leftover_share)
+            cloud, record = build_object(spec, task.seed, task.n_gaussians, task.realistic, task.leftover_share,
+                                         task.lighting_share)
         else:
             partner = _table(task.table_path)[task.partner]
             cloud, record = build_pair(spec, partner, task.seed, task.n_gaussians, task.realistic,
-                                       task.leftover_share)
+                                       task.leftover_share, task.lighting_share)
         if task.floor_seed is not None:
             cloud, n_floor = with_floor(cloud, np.random.default_rng(task.floor_seed))
             record = {**record, **extent_record(cloud), "floor": floor_record(n_floor)}
@@ -155,7 +158,8 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
                    split: str = "train", workers: int = 1, n_gaussians: int = 50_000,
                    table_path: str | Path | None = None, force: bool = False, realistic: bool = True,
                    pair_share: float = 0.0, floor_share: float = 0.0,
-                   leftover_share: float = LEFTOVER_OBJECT_SHARE) -> Path:
+                   leftover_share: float = LEFTOVER_OBJECT_SHARE,
+                   lighting_share: float = LIGHTING_OBJECT_SHARE) -> Path:
     """Write `count` objects of `split` under `out_dir`; returns the split directory.
 
     Classes are assigned round-robin; objects are built in `workers` spawned processes (1: in this
@@ -164,6 +168,7 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
     share of objects stood beside a partner of another category (dataset/pairs.py; needs ≥ 2 classes).
     `floor_share`: the share stood on a floor disc labelled stationary (dataset/floor.py).
     `leftover_share`: the share of realistic objects holding interior leftovers (dataset/leftovers.py).
+    `lighting_share`: the share of realistic objects whose colours carry baked lighting (dataset/lighting.py).
     """
     if count < 1:
         raise InputError(f"--count must be ≥ 1 (got {count})")
@@ -177,6 +182,8 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
         raise InputError(f"--floors must be a share from 0 to 1 (got {floor_share})")
     if not 0.0 <= leftover_share <= 1.0:
         raise InputError(f"--leftovers must be a share from 0 to 1 (got {leftover_share})")
+    if not 0.0 <= lighting_share <= 1.0:
+        raise InputError(f"--lighting must be a share from 0 to 1 (got {lighting_share})")
     if pair_share > 0 and n_gaussians < MIN_PAIR_GAUSSIANS:
         raise InputError(f"--pairs needs --gaussians ≥ {MIN_PAIR_GAUSSIANS} (half for each object; got {n_gaussians})")
     table_arg = None if table_path is None else str(Path(table_path).resolve())
@@ -197,7 +204,7 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
     partial = staging.path
     tasks = [ObjectTask(i, class_for_index(i, chosen), object_seed(seed, split, i), n_gaussians, str(partial),
                         table_arg, realistic, partner_for_index(seed, split, i, chosen, pair_share),
-                        floor_seed_for_index(seed, split, i, floor_share), leftover_share)
+                        floor_seed_for_index(seed, split, i, floor_share), leftover_share, lighting_share)
              for i in range(count)]
     try:
         entries = _run_tasks(tasks, workers)
@@ -207,6 +214,7 @@ def generate_split(out_dir: str | Path, count: int, *, classes: list[str] | None
                  "pair_share": pair_share, "pairs": sum("partner" in e for e in entries),
                  "floor_share": floor_share, "floors": sum("floor" in e for e in entries),
                  "leftover_share": leftover_share if realistic else 0.0,
+                 "lighting_share": lighting_share if realistic else 0.0,
                  "objects": entries}
         (partial / INDEX_NAME).write_text(json.dumps(index, indent=1) + "\n")
         staging.commit()

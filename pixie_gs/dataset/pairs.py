@@ -14,6 +14,7 @@ from ..splat import SplatCloud
 from .assemble import build_object, extent_record
 from .labels import ClassSpec
 from .leftovers import LEFTOVER_OBJECT_SHARE
+from .lighting import LIGHTING_OBJECT_SHARE
 
 PAIR_GAP = (-0.1, 0.2)  # gap between the footprints, as a share of the smaller one (negative: they overlap)
 PARTNER_PART_OFFSET = 100  # added to the partner's part ids, so the two objects' parts never share an id
@@ -47,9 +48,10 @@ def pair_seeds(pair_seed: int) -> tuple[int, int, int]:
 
 
 def build_pair(spec: ClassSpec, partner: ClassSpec, pair_seed: int, n_gaussians: int, realistic: bool = False,
-               leftover_share: float = LEFTOVER_OBJECT_SHARE) -> tuple[SplatCloud, dict]:
+               leftover_share: float = LEFTOVER_OBJECT_SHARE,
+               lighting_share: float = LIGHTING_OBJECT_SHARE) -> tuple[SplatCloud, dict]:
     """Object `spec` and a `partner` side by side, about `n_gaussians` Gaussians in all (half each;
-    `realistic` and `leftover_share` as in `build_object`, for both).
+    `realistic`, `leftover_share` and `lighting_share` as in `build_object`, for both).
 
     Returns the joined cloud (labels per Gaussian; the partner's part ids + PARTNER_PART_OFFSET) and
     A's index record with the pair's Gaussian count and bounds and a `partner` entry holding B's own
@@ -59,8 +61,9 @@ def build_pair(spec: ClassSpec, partner: ClassSpec, pair_seed: int, n_gaussians:
     if n_gaussians < MIN_PAIR_GAUSSIANS:
         raise ValueError(f"a pair needs ≥ {MIN_PAIR_GAUSSIANS} Gaussians (got {n_gaussians})")
     seed_a, seed_b, seed_place = pair_seeds(pair_seed)
-    a, record = build_object(spec, seed_a, n_gaussians // 2, realistic, leftover_share)
-    b, partner_record = build_object(partner, seed_b, n_gaussians - n_gaussians // 2, realistic, leftover_share)
+    a, record = build_object(spec, seed_a, n_gaussians // 2, realistic, leftover_share, lighting_share)
+    b, partner_record = build_object(partner, seed_b, n_gaussians - n_gaussians // 2, realistic, leftover_share,
+                                     lighting_share)
     b.set("part_id", (b.get("part_id") + PARTNER_PART_OFFSET).astype(np.int32), np.int32)
     cloud, shift = side_by_side(a, b, np.random.default_rng(seed_place))
     partner_record = {**partner_record, "part_id_offset": PARTNER_PART_OFFSET,
