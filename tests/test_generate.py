@@ -507,8 +507,8 @@ def test_shipped_tree_example_is_rebuilt_exactly():
 
 
 def test_house_plants_carry_foliage_down_to_the_pot():
-    """A house plant (a quarter of potted broadleaf trees) hides its short stem: its lowest leaves sit
-    within 0.15 of the plant's height above the pot, where a tree's crown starts 0.18 or more above it
+    """A house plant (a quarter of potted broadleaf trees, and the broad-leaved ones) hides its short stem: its
+    lowest leaves sit within 0.15 of the plant's height above the pot, where a tree's crown starts 0.18 or more above it
     (measured: 0.00-0.11 against 0.21-0.45)."""
     gaps: dict[bool, list[float]] = {True: [], False: []}
     for i in range(80):
@@ -525,6 +525,52 @@ def test_house_plants_carry_foliage_down_to_the_pot():
             break
     assert len(gaps[True]) >= 3 and len(gaps[False]) >= 3, gaps
     assert max(gaps[True]) < 0.15 < 0.18 < min(gaps[False]), gaps
+
+
+def test_leaf_sheet_is_a_pointed_cupped_blade_of_the_asked_size():
+    """A broad leaf from `leaf_sheet` spans `length` along its axis, is `width` across at its middle and
+    comes to a point at both ends, and its edges rise toward `normal` by cup × width (flat when cup = 0),
+    whatever direction it is turned to (the normal is made orthogonal to the axis)."""
+    from pixie_gs.dataset.primitives import leaf_sheet
+
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        along = rng.normal(size=3)
+        a = along / np.linalg.norm(along)
+        normal = rng.normal(size=3)
+        n = normal - (normal @ a) * a
+        n /= np.linalg.norm(n)
+        side = np.cross(n, a)
+        base = rng.normal(size=3)
+        for cup in (0.0, 0.2):
+            v = leaf_sheet(base, along, normal, length=0.3, width=0.12, cup=cup).vertices - base
+            u, w, h = v @ a, v @ side, v @ n
+            assert np.isclose(u.min(), 0.0, atol=1e-9) and np.isclose(u.max(), 0.3)
+            assert np.isclose(np.ptp(w), 0.12, rtol=0.02)
+            ends = (u < 1e-9) | (u > 0.3 - 1e-9)
+            assert np.allclose(w[ends], 0.0, atol=1e-9)  # pointed at base and tip
+            assert np.isclose(h.min(), 0.0, atol=1e-9) and np.isclose(h.max(), cup * 0.12, atol=1e-9)
+
+
+def test_a_third_of_potted_broadleaf_trees_are_broad_leaved_house_plants():
+    """LEAFY_HOUSEPLANT_SHARE of potted broadleaf trees carry broad flat leaves (`shape.broad_leaves`, the
+    number of leaves, two to four per branch) and count as house plants; unpotted trees never do."""
+    from pixie_gs.dataset.shapes import LEAFY_HOUSEPLANT_SHARE
+
+    leafy, potted = 0, 0
+    for i in range(120):
+        _, record = build_object(TABLE["tree"], object_seed(9, "train", i), 600, realistic=False)
+        shape = record["shape"]
+        if shape["kind"] != "broadleaf":
+            continue
+        if "broad_leaves" in shape:
+            assert shape["pot"] and shape["houseplant"], shape
+            assert 2 * shape["tips"] <= shape["broad_leaves"] <= 4 * shape["tips"], shape
+        if shape["pot"]:
+            potted += 1
+            leafy += "broad_leaves" in shape
+    assert potted >= 30
+    assert abs(leafy / potted - LEAFY_HOUSEPLANT_SHARE) < 3 * np.sqrt(0.21 / potted), (leafy, potted)
 
 
 def test_tools_lie_flat_with_steel_and_curtains_are_thin_standing_sheets():

@@ -86,7 +86,8 @@ def bake_lighting(cloud: SplatCloud, rng: np.random.Generator) -> tuple[SplatClo
     normal turned away from the object's centre, scaled so that the lit faces (90th percentile) get EXPOSURE;
     radiance = (paint + sheen)·E, the sheen being the grey a waxy or dusty surface reflects whatever its paint
     (it desaturates, most in shade); on glossy objects a Blinn-Phong highlight of the sun for one view is added.
-    Returns the cloud and a record of the draws."""
+    Changes `cloud`'s colours in place (the generator lights a cloud it has just built; pass a copy to keep the
+    unlit one) and returns it with a record of the draws."""
     points = cloud.means.astype(np.float64)
     n = len(points)
     alpha = 1.0 / (1.0 + np.exp(-cloud.opacity_logits.astype(np.float64)))

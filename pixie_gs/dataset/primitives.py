@@ -110,6 +110,30 @@ def blade(base: np.ndarray, height: float, width: float, lean: np.ndarray, segme
     return trimesh.Trimesh(vertices=verts, faces=np.asarray(faces), process=False)
 
 
+def leaf_sheet(base: np.ndarray, along: np.ndarray, normal: np.ndarray, length: float, width: float,
+               cup: float = 0.0, segments: int = 8, columns: int = 6) -> trimesh.Trimesh:
+    """Open sheet shaped like a broad leaf: from `base` along `along` for `length` (m), widest (`width`) near its
+    middle and pointed at both ends, its face turned to `normal` (made orthogonal to `along`), cupped by `cup`
+    (the edges rise by cup × width toward the normal)."""
+    a = np.asarray(along, float)
+    a = a / np.linalg.norm(a)
+    n = np.asarray(normal, float) - np.dot(normal, a) * a
+    n = n / np.linalg.norm(n) if np.linalg.norm(n) > 1e-9 else frame_along(np.zeros(3), a)[:3, 0]
+    side = np.cross(n, a)
+    u = np.linspace(0.0, 1.0, segments + 1)[:, None]
+    v = np.linspace(-1.0, 1.0, columns + 1)[None, :]
+    half = 0.5 * width * np.sin(np.pi * u) ** 0.7
+    lift = cup * width * v ** 2
+    verts = (np.asarray(base, float)[None, None, :] + (u * length)[..., None] * a + (v * half)[..., None] * side
+             + lift[..., None] * n).reshape(-1, 3)
+    faces = []
+    for i in range(segments):
+        for j in range(columns):
+            k = i * (columns + 1) + j
+            faces += [[k, k + columns + 1, k + columns + 2], [k, k + columns + 2, k + 1]]
+    return trimesh.Trimesh(vertices=verts, faces=np.asarray(faces), process=False)
+
+
 def pile_slab(radius: float, lower, upper, rings: int = 14, sections: int = 36) -> trimesh.Trimesh:
     """Closed solid between two height fields over a disc of `radius` (m).
 

@@ -14,7 +14,7 @@ from typing import Callable
 import numpy as np
 import trimesh
 
-from .primitives import (blade, box, concatenate, ellipsoid, lathe, pile_slab, random_rotation,
+from .primitives import (blade, box, concatenate, ellipsoid, lathe, leaf_sheet, pile_slab, random_rotation,
                          tapered_segment)
 
 
@@ -138,6 +138,29 @@ def blob_cluster(rng: np.random.Generator, centre: np.ndarray, size: float, coun
 
 
 # ---------------------------------------------------------------------------------- plants
+LEAFY_HOUSEPLANT_SHARE = 0.3  # potted broadleaf trees drawn as house plants with broad flat leaves
+
+
+def leaf_spray(rng: np.random.Generator, fork: np.ndarray, tips: list[np.ndarray], size: float
+               ) -> list[trimesh.Trimesh]:
+    """Broad flat leaves (a jade plant's, a rubber plant's) along each branch line from `fork` to its tip and
+    at the tip: 2–4 per branch, from the fork on, each `size` × 0.5–1 long, half to four fifths as wide, turned outward and
+    tilted toward the light, slightly cupped. Real potted plants show such leaves, not the clumps of
+    `blob_cluster`, and captures of them read as stiff as boards."""
+    leaves = []
+    for tip in tips:
+        branch = tip - fork
+        for u in np.append(rng.uniform(0.0, 0.9, int(rng.integers(1, 4))), 1.0):
+            at = fork + u * branch
+            out = np.append(rng.normal(0.0, 1.0, 2), rng.uniform(-0.2, 0.8))
+            along = _unit(out + 0.5 * _unit(branch))
+            normal = _unit(np.array([0.0, 0.0, 1.0]) + rng.normal(0.0, 0.5, 3))
+            length = size * rng.uniform(0.5, 1.0)
+            leaves.append(leaf_sheet(at, along, normal, length, length * rng.uniform(0.5, 0.8),
+                                     cup=rng.uniform(0.0, 0.25)))
+    return leaves
+
+
 def pot_pieces(rng: np.random.Generator, height: float, radius: float, part: str,
                side: np.random.Generator | None = None) -> tuple[list[Piece], float, str]:
     """A flower pot shell with a soil disc inside; returns pieces, top height (m) and the pot's shape
@@ -198,6 +221,12 @@ def potted_tree(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict
     else:
         trunk_len = (top - base_z) * rng.uniform(0.35, 0.55)
         houseplant = has_pot and side.random() < 0.25
+        leafy_rng = side_stream(rng, 2)  # broad flat leaves (since stop 43): its own stream, so others stay
+        leafy = has_pot and leafy_rng.random() < LEAFY_HOUSEPLANT_SHARE
+        if leafy:
+            houseplant = True
+            bark = jitter(leafy_rng, pick(leafy_rng, LEAF_GREENS), 0.1) if leafy_rng.random() < 0.6 else bark
+            bark = tuple(0.75 * c for c in bark) if leafy_rng.random() < 0.5 else bark
         if houseplant:
             trunk_len = (top - base_z) * side.uniform(0.06, 0.18)
         direction = _unit(np.array([rng.normal(0, 0.08), rng.normal(0, 0.08), 1.0]))
@@ -213,9 +242,11 @@ def potted_tree(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict
             tips += t
         crown = (top - base_z) * rng.uniform(0.16, 0.24)
         blobs = []
-        for tip in tips:
+        if leafy:
+            blobs = leaf_spray(leafy_rng, fork, tips, crown)
+        for tip in ([] if leafy else tips):
             blobs += blob_cluster(rng, tip, crown, int(rng.integers(3, 6)))
-        if houseplant:  # foliage along each branch line from the fork to its tip
+        if houseplant and not leafy:  # foliage along each branch line from the fork to its tip
             for tip in tips:
                 for u in side.uniform(0.1, 0.8, 2):
                     blobs += blob_cluster(side, fork + u * (tip - fork), crown * 0.9, 3)
@@ -223,6 +254,8 @@ def potted_tree(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict
                    Piece("leaves", concatenate(blobs), leaf, 0.08)]
         params = {"height_m": height, "kind": kind, "branch_depth": depth, "tips": len(tips),
                   "cluster_size_m": crown, "houseplant": houseplant}
+        if leafy:
+            params["broad_leaves"] = len(blobs)
     params["pot"] = has_pot
     if has_pot:
         params["pot_shape"] = pot_shape
