@@ -4,14 +4,14 @@ The second real set's potted plant (broad flat leaves) comes out with foliage at
 while its labels say leaves are soft. Repainting the capture's foliage did not move the reading much
 (docs/model_card.md, "Broad-leaved house plants"), so the shape is the suspect. This script tests that on
 generated objects, whose true labels are known: potted broadleaf trees from the test split, grouped as
-  - broad-leaved house plants (`shape.broad_leaves`: flat leaf sheets, since stop 42),
+  - broad-leaved house plants (`shape.broad_leaves`: flat leaf sheets, since stop 43),
   - clump house plants (foliage clumps down to the pot),
   - potted trees (clumps on a crown),
 and for each checkpoint prints, per group, the median predicted E of the leaf Gaussians (Pa), the median
 error of log10 E against each object's own leaf label (decades, signed: + reads too stiff), and the share
 of leaf Gaussians read within one decade of their label. No speed target: a correctness benchmark.
 
-    python benchmarks/bench_leafy_plants.py                                   # shipped checkpoint, ~2 min
+    python benchmarks/bench_leafy_plants.py                                   # shipped checkpoint, ~10 s
     python benchmarks/bench_leafy_plants.py --checkpoint a.pt b.pt --per-group 8 --json leafy.json
 """
 from __future__ import annotations

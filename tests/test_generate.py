@@ -552,7 +552,7 @@ def test_leaf_sheet_is_a_pointed_cupped_blade_of_the_asked_size():
             assert np.isclose(h.min(), 0.0, atol=1e-9) and np.isclose(h.max(), cup * 0.12, atol=1e-9)
 
 
-def test_a_third_of_potted_broadleaf_trees_are_broad_leaved_house_plants():
+def test_broad_leaved_house_plants_are_their_share_of_potted_broadleaf_trees():
     """LEAFY_HOUSEPLANT_SHARE of potted broadleaf trees carry broad flat leaves (`shape.broad_leaves`, the
     number of leaves, two to four per branch) and count as house plants; unpotted trees never do."""
     from pixie_gs.dataset.shapes import LEAFY_HOUSEPLANT_SHARE

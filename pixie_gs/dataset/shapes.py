@@ -241,15 +241,16 @@ def potted_tree(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict
             segs += s
             tips += t
         crown = (top - base_z) * rng.uniform(0.16, 0.24)
-        blobs = []
         if leafy:
             blobs = leaf_spray(leafy_rng, fork, tips, crown)
-        for tip in ([] if leafy else tips):
-            blobs += blob_cluster(rng, tip, crown, int(rng.integers(3, 6)))
-        if houseplant and not leafy:  # foliage along each branch line from the fork to its tip
+        else:
+            blobs = []
             for tip in tips:
-                for u in side.uniform(0.1, 0.8, 2):
-                    blobs += blob_cluster(side, fork + u * (tip - fork), crown * 0.9, 3)
+                blobs += blob_cluster(rng, tip, crown, int(rng.integers(3, 6)))
+            if houseplant:  # foliage along each branch line from the fork to its tip
+                for tip in tips:
+                    for u in side.uniform(0.1, 0.8, 2):
+                        blobs += blob_cluster(side, fork + u * (tip - fork), crown * 0.9, 3)
         pieces += [Piece("trunk", concatenate(segs), bark, 0.05),
                    Piece("leaves", concatenate(blobs), leaf, 0.08)]
         params = {"height_m": height, "kind": kind, "branch_depth": depth, "tips": len(tips),
