@@ -11,7 +11,9 @@ the prepared path compare with the clean object's prepared prediction):
 - floaters: 5 % extra Gaussians uniform in the object's box, and in that box grown by 25 % per side;
 - tilt: 30° about a random horizontal axis, annotated as is (+z up);
 - baked lighting: colours as a capture's cameras saw them under a sky and a sun, with self-shadowing, sheen
-  and highlights (pixie_gs/dataset/lighting.py, the generator's own draw for the object);
+  and highlights (pixie_gs/dataset/lighting.py, the generator's own draw for the object). A probe, not a
+  target: it lights clean-paint objects, which the generator never lights (only capture-like ones), and a lit
+  clean sand pile reads as snow under every checkpoint so far while lit capture-like sand reads right;
 - with `--prepared`, the grown-box floaters and the tilt also through the default `pixie annotate`
   path (prepare: floaters, up, objects), which is meant to remove the floaters and undo the tilt.
 
