@@ -137,7 +137,8 @@ def main() -> None:
     for k in range(args.per_class):
         for ci, name in enumerate(names):
             index = k * len(table) + list(table).index(name)
-            clean, labels = build_object(table[name], object_seed(args.seed, "test", index), args.gaussians)
+            seed = object_seed(args.seed, "test", index)
+            clean, labels = build_object(table[name], seed, args.gaussians)
             base, base_conf = predict(clean, device=args.device)
             row = {"category": name, "object": index, "gaussians": len(clean),
                    "accuracy_clean": float((base == clean.get("material_id")).mean()),
@@ -150,9 +151,8 @@ def main() -> None:
                 mat, conf = predict(cloud, prepared, args.device)
                 row["agreement"][what] = agreement(base_prepared if prepared else base, mat)
                 row["confidence"][what] = float(conf[:len(clean)].mean())
-            mat, conf = lit_capture_agreement(table[name], object_seed(args.seed, "test", index), args.gaussians,
-                                              args.device)
-            row["agreement"][LIT_CAPTURE_ROW], row["confidence"][LIT_CAPTURE_ROW] = mat, conf
+            lit_agreement, lit_confidence = lit_capture_agreement(table[name], seed, args.gaussians, args.device)
+            row["agreement"][LIT_CAPTURE_ROW], row["confidence"][LIT_CAPTURE_ROW] = lit_agreement, lit_confidence
             rows.append(row)
             worst = min(row["agreement"], key=row["agreement"].get)
             print(f"[{time.perf_counter() - t0:6.0f} s] {name:<18} acc {row['accuracy_clean']:.3f}  "
