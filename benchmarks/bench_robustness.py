@@ -162,7 +162,8 @@ def main() -> None:
     paper = set(list(table)[:10])
     print(f"\nagreement with the clean prediction (per object; target ≥ {AGREEMENT_TARGET}), "
           f"{len(rows)} objects, {args.gaussians} Gaussians each")
-    print(f"{'perturbation':<26}{'mean':>7}{'min':>7}{'≥0.95':>8}{'10 paper':>10}{'16 new':>8}  worst   "
+    new_header = f"{len(set(table) - paper)} new"
+    print(f"{'perturbation':<26}{'mean':>7}{'min':>7}{'≥0.95':>8}{'10 paper':>10}{new_header:>8}  worst   "
           f"{'conf.':>6}")
     summary = {}
     for what in whats:
