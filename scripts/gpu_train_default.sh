@@ -57,19 +57,24 @@ for split in train val test; do
     # "COUNT:GAUSSIANS:pairs|clean-pairs" makes every object a pair (`generate --pairs 1`, half the Gaussians each);
     # "COUNT:GAUSSIANS:floors|clean-floors" stands every object on a floor disc (`generate --floors 1`);
     # "COUNT:GAUSSIANS:leftovers" gives every capture-like object interior leftovers (`generate --leftovers 1`);
-    # "COUNT:GAUSSIANS:lit" gives every capture-like object baked lighting (`generate --lighting 1`)
+    # "COUNT:GAUSSIANS:lit" gives every capture-like object baked lighting (`generate --lighting 1`);
+    # "COUNT:GAUSSIANS:broadleaf" draws COUNT capture-like trees and keeps the broad-leaved ones (about 15 %,
+    # scripts/filter_split.py)
     IFS=: read -r n g look only <<<"$tier"
-    gen_args=""
+    gen_args="" keep_shape=""
     case "${look:-capture}" in
       capture) ;; clean) gen_args="--clean" ;; pairs) gen_args="--pairs 1" ;; clean-pairs) gen_args="--clean --pairs 1" ;;
       floors) gen_args="--floors 1" ;; clean-floors) gen_args="--clean --floors 1" ;; leftovers) gen_args="--leftovers 1" ;;
-      lit) gen_args="--lighting 1" ;;
-      *) say "unknown tier look '$look' in '$tier' (capture, clean, pairs, clean-pairs, floors, clean-floors, leftovers, lit)"; exit 1 ;;
+      lit) gen_args="--lighting 1" ;; broadleaf) only=tree keep_shape=broad_leaves ;;
+      *) say "unknown tier look '$look' in '$tier' (capture, clean, pairs, clean-pairs, floors, clean-floors, leftovers, lit, broadleaf)"; exit 1 ;;
     esac
     [ -n "${only:-}" ] && gen_args="$gen_args --classes $only"
     part="$DATA/parts/$split$k"
     $P generate "$part" --count $n --split $split --seed $(( SEED * 100 + k )) --workers $WORKERS --gaussians $g $GEN_ARGS $gen_args -q --force \
       >>"$LOG" 2>&1 || { say "generate $split tier $tier failed"; exit 1; }
+    if [ -n "$keep_shape" ]; then
+      python3 scripts/filter_split.py "$part" $split $keep_shape >>"$LOG" 2>&1 || { say "filter $split tier $tier failed"; exit 1; }
+    fi
     parts+=("$part"); k=$((k + 1))
   done
   python3 scripts/merge_splits.py "$DATA" $split "${parts[@]}" >>"$LOG" 2>&1 || { say "merge $split failed"; exit 1; }

@@ -601,3 +601,29 @@ def test_tools_lie_flat_with_steel_and_curtains_are_thin_standing_sheets():
         cloud, record = build_object(TABLE["long_produce"], seed, 2000, realistic=False)
         p = cloud.means.astype(np.float64)
         assert np.ptp(p[:, :2], axis=0).max() >= 2 * np.ptp(p[:, 2]), record["shape"]
+
+
+def test_filter_split_keeps_exactly_the_broad_leaved_trees(tmp_path: Path):
+    """scripts/filter_split.py (the chain's `broadleaf` tier) keeps every object whose shape has the key and
+    only those: files of the others gone, the index's count and class counts rewritten, the rest loadable."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "filter_split", Path(__file__).resolve().parents[1] / "scripts" / "filter_split.py")
+    filter_split = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(filter_split)
+
+    assert main(["generate", str(tmp_path), "--count", "24", "--split", "train", "--seed", "9",
+                 "--classes", "tree", *SMALL]) == 0
+    folder = tmp_path / "train"
+    records = [json.loads(p.read_text()) for p in sorted(folder.glob("0*.json"))]
+    leafy = sorted(r["file"] for r in records if "broad_leaves" in r["shape"])
+    assert 0 < len(leafy) < len(records) == 24  # the draw has both kinds, or the test proves nothing
+
+    kept, drawn = filter_split.filter_split(tmp_path, "train", "broad_leaves")
+    assert (kept, drawn) == (len(leafy), 24)
+    index = json.loads((folder / "index.json").read_text())
+    assert sorted(e["file"] for e in index["objects"]) == leafy
+    assert index["count"] == len(leafy) and index["class_counts"] == {"tree": len(leafy)}
+    assert sorted(p.name for p in folder.glob("*.ply")) == leafy
+    assert len(list_objects(tmp_path, "train")) == len(leafy)
