@@ -13,6 +13,10 @@ of leaf Gaussians read within one decade of their label. No speed target: a corr
 
     python benchmarks/bench_leafy_plants.py                                   # shipped checkpoint, ~10 s
     python benchmarks/bench_leafy_plants.py --checkpoint a.pt b.pt --per-group 8 --json leafy.json
+    python benchmarks/bench_leafy_plants.py --per-group 24 --per-plant      # does it read stems and leaves apart?
+
+With `--per-plant`, each broad-leaved plant's row: how far its stems' colour is from its leaves', its leaves'
+median error, and the share of its stems read softer than 1e7 Pa (stems are labelled 1e9–1e10 Pa).
 """
 from __future__ import annotations
 
@@ -55,15 +59,32 @@ def draw_objects(per_group: int, gaussians: int, seed: int, max_draws: int = 200
     return [item for g in GROUPS for item in found[g]]
 
 
+SOFT_STEM_PA = 1e7  # a stem (labelled 1e9–1e10 Pa) read below this is read as soft as foliage
+
+
+def plant_row(cloud, record: dict, E_true: np.ndarray, E_pred: np.ndarray) -> dict:
+    """One plant: distance of its stems' mean RGB from its leaves', the leaves' median log10 E error (decades)
+    and the share of stem Gaussians read below SOFT_STEM_PA: does it read stems and leaves apart?"""
+    names = [p["name"] for p in record["parts"]]
+    leaves, stems = (cloud.extras["part_id"] == names.index(n) for n in ("leaves", "trunk"))
+    rgb = cloud.rgb()
+    return {"stem_leaf_rgb_distance": float(np.linalg.norm(rgb[stems].mean(0) - rgb[leaves].mean(0))),
+            "leaf_median_log10_error": float(np.median(np.log10(E_pred[leaves]) - np.log10(E_true[leaves]))),
+            "stems_read_soft": float(np.mean(E_pred[stems] < SOFT_STEM_PA))}
+
+
 def leaf_errors(checkpoint: str | None, objects: list) -> dict[str, dict]:
-    """Per group: the leaf Gaussians' predicted E (Pa) and their log10 error against the labels."""
-    rows: dict[str, dict[str, list]] = {g: {"E": [], "err": []} for g in GROUPS}
+    """Per group: the leaf Gaussians' predicted E (Pa) and their log10 error against the labels; per
+    broad-leaved plant also `plant_row`'s figures."""
+    rows: dict[str, dict[str, list]] = {g: {"E": [], "err": [], "plants": []} for g in GROUPS}
     for group, cloud, record in objects:
         leaves = cloud.extras["part_id"] == [p["name"] for p in record["parts"]].index("leaves")
         _, E_true, _, _ = cloud.get_materials()
         _, E_pred, _, _ = annotate_cloud(cloud, checkpoint, device="cpu").get_materials()
         rows[group]["E"].append(E_pred[leaves])
         rows[group]["err"].append(np.log10(E_pred[leaves]) - np.log10(E_true[leaves]))
+        if group == GROUPS[0]:
+            rows[group]["plants"].append(plant_row(cloud, record, E_true, E_pred))
     out = {}
     for group, r in rows.items():
         if not r["E"]:
@@ -73,6 +94,8 @@ def leaf_errors(checkpoint: str | None, objects: list) -> dict[str, dict]:
                       "median_log10_error": float(np.median(err)),
                       "share_within_1_decade": float(np.mean(np.abs(err) <= 1.0)),
                       "per_object_median_E_Pa": [float(np.median(e)) for e in r["E"]]}
+        if r["plants"]:
+            out[group]["plants"] = r["plants"]
     return out
 
 
@@ -82,6 +105,8 @@ def main() -> None:
     ap.add_argument("--per-group", type=int, default=6, help="objects per group")
     ap.add_argument("--gaussians", type=int, default=12000)
     ap.add_argument("--seed", type=int, default=11, help="dataset seed of the test-split objects")
+    ap.add_argument("--per-plant", action="store_true",
+                    help="also print each broad-leaved plant: stem-leaf colour distance, leaf error, stems read soft")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     set_quiet(True)
@@ -97,6 +122,11 @@ def main() -> None:
             print(f"{name:>24}  {group:<25} {r['objects']:>2} objects  leaves median E {r['median_E_Pa']:.2g} Pa  "
                   f"log10 error {r['median_log10_error']:+.2f}  within 1 decade {r['share_within_1_decade']:.2f}  "
                   f"[{time.perf_counter() - t0:.0f} s]")
+            if args.per_plant and "plants" in r:
+                for p in sorted(r["plants"], key=lambda p: p["stem_leaf_rgb_distance"]):
+                    print(f"{'':>26}stem-leaf RGB distance {p['stem_leaf_rgb_distance']:.3f}  leaf error "
+                          f"{p['leaf_median_log10_error']:+.2f}  stems read < {SOFT_STEM_PA:.0e} Pa "
+                          f"{p['stems_read_soft']:.2f}")
     if args.json:
         args.json.write_text(json.dumps({"per_group": args.per_group, "gaussians": args.gaussians,
                                          "seed": args.seed, "results": report}, indent=1))
