@@ -62,14 +62,13 @@ def draw_objects(per_group: int, gaussians: int, seed: int, max_draws: int = 200
 SOFT_STEM_PA = 1e7  # a stem (labelled 1e9–1e10 Pa) read below this is read as soft as foliage
 
 
-def plant_row(cloud, record: dict, E_true: np.ndarray, E_pred: np.ndarray) -> dict:
-    """One plant: distance of its stems' mean RGB from its leaves', the leaves' median log10 E error (decades)
-    and the share of stem Gaussians read below SOFT_STEM_PA: does it read stems and leaves apart?"""
-    names = [p["name"] for p in record["parts"]]
-    leaves, stems = (cloud.extras["part_id"] == names.index(n) for n in ("leaves", "trunk"))
-    rgb = cloud.rgb()
+def plant_row(rgb: np.ndarray, leaves: np.ndarray, stems: np.ndarray, leaf_error: np.ndarray,
+              E_pred: np.ndarray) -> dict:
+    """One plant (rgb (M,3), boolean part masks, its leaves' log10 E errors, predicted E in Pa): distance of
+    its stems' mean RGB from its leaves', the leaves' median error (decades) and the share of stem Gaussians
+    read below SOFT_STEM_PA: does it read stems and leaves apart?"""
     return {"stem_leaf_rgb_distance": float(np.linalg.norm(rgb[stems].mean(0) - rgb[leaves].mean(0))),
-            "leaf_median_log10_error": float(np.median(np.log10(E_pred[leaves]) - np.log10(E_true[leaves]))),
+            "leaf_median_log10_error": float(np.median(leaf_error)),
             "stems_read_soft": float(np.mean(E_pred[stems] < SOFT_STEM_PA))}
 
 
@@ -78,13 +77,15 @@ def leaf_errors(checkpoint: str | None, objects: list) -> dict[str, dict]:
     broad-leaved plant also `plant_row`'s figures."""
     rows: dict[str, dict[str, list]] = {g: {"E": [], "err": [], "plants": []} for g in GROUPS}
     for group, cloud, record in objects:
-        leaves = cloud.extras["part_id"] == [p["name"] for p in record["parts"]].index("leaves")
+        names = [p["name"] for p in record["parts"]]
+        leaves, stems = (cloud.extras["part_id"] == names.index(n) for n in ("leaves", "trunk"))
         _, E_true, _, _ = cloud.get_materials()
         _, E_pred, _, _ = annotate_cloud(cloud, checkpoint, device="cpu").get_materials()
+        error = np.log10(E_pred[leaves]) - np.log10(E_true[leaves])
         rows[group]["E"].append(E_pred[leaves])
-        rows[group]["err"].append(np.log10(E_pred[leaves]) - np.log10(E_true[leaves]))
+        rows[group]["err"].append(error)
         if group == GROUPS[0]:
-            rows[group]["plants"].append(plant_row(cloud, record, E_true, E_pred))
+            rows[group]["plants"].append(plant_row(cloud.rgb(), leaves, stems, error, E_pred))
     out = {}
     for group, r in rows.items():
         if not r["E"]:
