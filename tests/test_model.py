@@ -636,6 +636,31 @@ def test_train_rejects_a_tilt_outside_its_range(tmp_path, capsys, flag, value):
     assert not (tmp_path / "m.pt").exists()
 
 
+def test_learning_rate_reaches_lr_after_the_warm_up_steps_then_decays():
+    """The schedule is linear warm-up over `warmup_steps`, then cosine decay to 0 at the last step: a
+    120-step fine-tune with the default 100-step warm-up peaks at a third of --lr (warm-up and cosine cross);
+    with 10 warm-up steps it holds nearly all of it (the case that made stop 46's overfit check weak)."""
+    from pixie_gs.model.train import TrainConfig, learning_rate
+
+    def rates(warm: int) -> list[float]:
+        cfg = TrainConfig(lr=1.0, warmup_steps=warm)
+        return [learning_rate(cfg, s, 120, 0.0) for s in range(120)]
+
+    slow, quick = rates(100), rates(10)
+    assert 0.3 < max(slow) < 0.35 and 40 < slow.index(max(slow)) < 60
+    assert quick[9] == pytest.approx(0.5 * (1 + math.cos(math.pi * 9 / 120)))  # full rate times the cosine
+    assert quick[0] == pytest.approx(0.1) and max(quick) > 0.98
+    assert rates(0)[0] == pytest.approx(1.0) and quick[-1] < 1e-3
+
+
+def test_train_rejects_a_negative_warm_up(tmp_path, capsys):
+    from pixie_gs.cli.main import main
+
+    rc = main(["train", str(tmp_path), "--out", str(tmp_path / "m.pt"), "--warmup-steps", "-1", "--device", "cpu", "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1 and "--warmup-steps must be ≥ 0" in err[0], (rc, err)
+
+
 @pytest.mark.parametrize("flag,value,message", [
     ("--context-width", "2048", "--context-width must be ≤ 1024"), ("--base-channels", "1500", "--base-channels must be ≤ 1024"),
     ("--res-blocks", "17", "--res-blocks must be ≤ 16"), ("--resolution", "4", "--resolution must be ≥ 8"),

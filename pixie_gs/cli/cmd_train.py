@@ -28,6 +28,9 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--batch-size", type=int, default=8,
                    help="objects per optimiser step, over all processes (default 8)")
     p.add_argument("--lr", type=float, default=2e-3, help="Adam learning rate (default 2e-3)")
+    p.add_argument("--warmup-steps", type=int, default=100, metavar="S",
+                   help="optimiser steps over which the learning rate rises linearly to --lr (default 100); a short "
+                        "fine-tune on few objects needs fewer, or it ends before the rate is reached")
     p.add_argument("--seed", type=int, default=0, help="seed for initialisation, shuffling and augmentation")
     p.add_argument("--inputs", choices=["full", "rgb", "occupancy"], default="full",
                    help="input channels: every feature (default), occupancy+RGB, or occupancy only (ablation)")
@@ -110,6 +113,8 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--{name.replace('_', '-')} must be ≥ 1")
     if args.context_width < 0:
         raise InputError("--context-width must be ≥ 0")
+    if args.warmup_steps < 0:
+        raise InputError(f"--warmup-steps must be ≥ 0 (got {args.warmup_steps})")
     # a network that `annotate` would refuse to load (model/checkpoint.py's ranges) is refused before training
     from ..model.checkpoint import CHANNELS_RANGE, MAX_LEVELS, MAX_RES_BLOCKS, MULTIPLIER_RANGE, RESOLUTION_RANGE
 
@@ -150,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--teacher-pool-repeat must be ≥ 1 (got {args.teacher_pool_repeat})")
     if args.teacher_pool_repeat != 1 and not args.teacher_pool:
         raise InputError("--teacher-pool-repeat needs --teacher-pool (the pool to repeat)")
-    cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, time_budget_s=args.time_budget_s,
+    cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, warmup_steps=args.warmup_steps,
+                      time_budget_s=args.time_budget_s,
                       seed=args.seed, augment=not args.no_augment, workers=args.workers,
                       tilt_max_deg=args.tilt_deg, tilt_share=args.tilt_share, margin_max=args.frame_margin_max,
                       decal_share=args.decal_share, hue_share=args.hue_share,

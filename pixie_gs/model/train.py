@@ -36,7 +36,7 @@ class TrainConfig:
     batch_size: int = 8  # objects per optimiser step (split over the processes under torchrun)
     lr: float = 2e-3
     weight_decay: float = 1e-4
-    warmup_steps: int = 100
+    warmup_steps: int = 100  # optimiser steps of linear warm-up before the cosine decay
     time_budget_s: float | None = None
     class_weight: float = 1.0
     seed: int = 0
@@ -319,6 +319,9 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
     val_batch = VAL_BATCH_CUDA if use_cuda(device) else VAL_BATCH_CPU
     steps_per_epoch = math.ceil(len(train_store) / cfg.batch_size)
     total_steps = steps_per_epoch * cfg.epochs
+    if cfg.warmup_steps > total_steps // 4:
+        stage(f"note: the learning rate warms up over {cfg.warmup_steps} of the run's {total_steps} steps, so it "
+              f"never holds --lr for long (--warmup-steps sets the warm-up)")
     use_amp = use_cuda(device)
     if use_amp:
         torch.backends.cudnn.benchmark = True
