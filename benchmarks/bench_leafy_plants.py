@@ -14,6 +14,8 @@ of leaf Gaussians read within one decade of their label. No speed target: a corr
     python benchmarks/bench_leafy_plants.py                                   # shipped checkpoint, ~10 s
     python benchmarks/bench_leafy_plants.py --checkpoint a.pt b.pt --per-group 8 --json leafy.json
     python benchmarks/bench_leafy_plants.py --per-group 24 --per-plant      # does it read stems and leaves apart?
+    python benchmarks/bench_leafy_plants.py --split-dir bl/train --per-group 16 --per-plant --checkpoint a.pt
+                                           # the plants a run trained on (a generated split, in index order)
 
 With `--per-plant`, each broad-leaved plant's row: how far its stems' colour is from its leaves', its leaves'
 median error, and the share of its stems read softer than 1e7 Pa (stems are labelled 1e9–1e10 Pa).
@@ -43,6 +45,21 @@ def group_of(shape: dict) -> str | None:
     if "broad_leaves" in shape:
         return GROUPS[0]
     return GROUPS[1] if shape.get("houseplant") else GROUPS[2]
+
+
+def split_objects(folder: Path, per_group: int) -> list[tuple[str, object, dict]]:
+    """(group, cloud, record) for up to `per_group` potted broadleaf trees of each group in a generated split
+    folder (`pixie generate` output, e.g. one `scripts/filter_split.py` kept), in its index order: the objects
+    an overfit check trained on, read back by the same figures."""
+    from pixie_gs.splat import read_splat
+
+    found: dict[str, list] = {g: [] for g in GROUPS}
+    for entry in json.loads((folder / "index.json").read_text())["objects"]:
+        record = json.loads((folder / f"{Path(entry['file']).stem}.json").read_text())
+        group = group_of(record.get("shape", {}))
+        if group is not None and len(found[group]) < per_group:
+            found[group].append((group, read_splat(folder / entry["file"]), record))
+    return [item for g in GROUPS for item in found[g]]
 
 
 def draw_objects(per_group: int, gaussians: int, seed: int, max_draws: int = 2000) -> list[tuple[str, object, dict]]:
@@ -106,15 +123,21 @@ def main() -> None:
     ap.add_argument("--per-group", type=int, default=6, help="objects per group")
     ap.add_argument("--gaussians", type=int, default=12000)
     ap.add_argument("--seed", type=int, default=11, help="dataset seed of the test-split objects")
+    ap.add_argument("--split-dir", type=Path, default=None, metavar="DIR/SPLIT",
+                    help="read the trees of this generated split folder instead of drawing test-split ones")
     ap.add_argument("--per-plant", action="store_true",
                     help="also print each broad-leaved plant: stem-leaf colour distance, leaf error, stems read soft")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     set_quiet(True)
     t0 = time.perf_counter()
-    objects = draw_objects(args.per_group, args.gaussians, args.seed)
-    print(f"{len(objects)} potted broadleaf trees (seed {args.seed}, test split, {args.gaussians} Gaussians) "
-          f"in {time.perf_counter() - t0:.0f} s")
+    if args.split_dir is not None:
+        objects = split_objects(args.split_dir, args.per_group)
+        print(f"{len(objects)} potted broadleaf trees from {args.split_dir} in {time.perf_counter() - t0:.0f} s")
+    else:
+        objects = draw_objects(args.per_group, args.gaussians, args.seed)
+        print(f"{len(objects)} potted broadleaf trees (seed {args.seed}, test split, {args.gaussians} Gaussians) "
+              f"in {time.perf_counter() - t0:.0f} s")
     report = {}
     for ckpt in args.checkpoint:
         name = ckpt or "shipped"
