@@ -18,7 +18,9 @@ of leaf Gaussians read within one decade of their label. No speed target: a corr
                                            # the plants a run trained on (a generated split, in index order)
 
 With `--per-plant`, each broad-leaved plant's row: how far its stems' colour is from its leaves', its leaves'
-median error, and the share of its stems read softer than 1e7 Pa (stems are labelled 1e9–1e10 Pa).
+median error, the share of its stems read softer than 1e7 Pa (stems are labelled 1e9–1e10 Pa) and the mean
+squared log10 E error over its Gaussians, then the medians of the first two and the mean of the last over the
+plants.
 """
 from __future__ import annotations
 
@@ -79,14 +81,17 @@ def draw_objects(per_group: int, gaussians: int, seed: int, max_draws: int = 200
 SOFT_STEM_PA = 1e7  # a stem (labelled 1e9–1e10 Pa) read below this is read as soft as foliage
 
 
-def plant_row(rgb: np.ndarray, leaves: np.ndarray, stems: np.ndarray, leaf_error: np.ndarray,
+def plant_row(rgb: np.ndarray, leaves: np.ndarray, stems: np.ndarray, E_true: np.ndarray,
               E_pred: np.ndarray) -> dict:
-    """One plant (rgb (M,3), boolean part masks, its leaves' log10 E errors, predicted E in Pa): distance of
-    its stems' mean RGB from its leaves', the leaves' median error (decades) and the share of stem Gaussians
-    read below SOFT_STEM_PA: does it read stems and leaves apart?"""
+    """One plant (rgb (M,3), boolean part masks, true and predicted E in Pa): distance of its stems' mean RGB
+    from its leaves', the leaves' median log10 E error (decades), the share of stem Gaussians read below
+    SOFT_STEM_PA, and the mean squared log10 E error over all its Gaussians (decades²): does it read stems and
+    leaves apart?"""
+    error = np.log10(E_pred) - np.log10(E_true)
     return {"stem_leaf_rgb_distance": float(np.linalg.norm(rgb[stems].mean(0) - rgb[leaves].mean(0))),
-            "leaf_median_log10_error": float(np.median(leaf_error)),
-            "stems_read_soft": float(np.mean(E_pred[stems] < SOFT_STEM_PA))}
+            "leaf_median_log10_error": float(np.median(error[leaves])),
+            "stems_read_soft": float(np.mean(E_pred[stems] < SOFT_STEM_PA)),
+            "log10_E_mse": float(np.mean(error ** 2))}
 
 
 def leaf_errors(checkpoint: str | None, objects: list) -> dict[str, dict]:
@@ -102,7 +107,7 @@ def leaf_errors(checkpoint: str | None, objects: list) -> dict[str, dict]:
         rows[group]["E"].append(E_pred[leaves])
         rows[group]["err"].append(error)
         if group == GROUPS[0]:
-            rows[group]["plants"].append(plant_row(cloud.rgb(), leaves, stems, error, E_pred))
+            rows[group]["plants"].append(plant_row(cloud.rgb(), leaves, stems, E_true, E_pred))
     out = {}
     for group, r in rows.items():
         if not r["E"]:
@@ -150,7 +155,11 @@ def main() -> None:
                 for p in sorted(r["plants"], key=lambda p: p["stem_leaf_rgb_distance"]):
                     print(f"{'':>26}stem-leaf RGB distance {p['stem_leaf_rgb_distance']:.3f}  leaf error "
                           f"{p['leaf_median_log10_error']:+.2f}  stems read < {SOFT_STEM_PA:.0e} Pa "
-                          f"{p['stems_read_soft']:.2f}")
+                          f"{p['stems_read_soft']:.2f}  log10 E MSE {p['log10_E_mse']:.2f}")
+                med = {k: float(np.median([p[k] for p in r["plants"]])) for k in ("stems_read_soft", "leaf_median_log10_error")}
+                mse = float(np.mean([p["log10_E_mse"] for p in r["plants"]]))
+                print(f"{'':>26}over the plants: median stems read soft {med['stems_read_soft']:.2f}, median leaf "
+                      f"error {med['leaf_median_log10_error']:+.2f}, mean log10 E MSE {mse:.2f} decades²")
     if args.json:
         args.json.write_text(json.dumps({"per_group": args.per_group, "gaussians": args.gaussians,
                                          "seed": args.seed, "results": report}, indent=1))
