@@ -49,45 +49,55 @@ def group_of(shape: dict) -> str | None:
     return GROUPS[1] if shape.get("houseplant") else GROUPS[2]
 
 
+def first_per_group(candidates, per_group: int) -> list[tuple[str, object, dict]]:
+    """(group, cloud, record) for the first `per_group` potted broadleaf trees of each group among `candidates`,
+    an iterable of (record, load_cloud) pairs in order; a cloud is loaded only when its tree is kept, and the
+    iteration stops once every group is full."""
+    found: dict[str, list] = {g: [] for g in GROUPS}
+    for record, load_cloud in candidates:
+        group = group_of(record.get("shape", {}))
+        if group is not None and len(found[group]) < per_group:
+            found[group].append((group, load_cloud(), record))
+        if all(len(v) >= per_group for v in found.values()):
+            break
+    return [item for g in GROUPS for item in found[g]]
+
+
 def split_objects(folder: Path, per_group: int) -> list[tuple[str, object, dict]]:
     """(group, cloud, record) for up to `per_group` potted broadleaf trees of each group in a generated split
     folder (`pixie generate` output, e.g. one `scripts/filter_split.py` kept), in its index order: the objects
     an overfit check trained on, read back by the same figures."""
     from pixie_gs.splat import read_splat
 
-    found: dict[str, list] = {g: [] for g in GROUPS}
-    for entry in json.loads((folder / "index.json").read_text())["objects"]:
-        record = json.loads((folder / f"{Path(entry['file']).stem}.json").read_text())
-        group = group_of(record.get("shape", {}))
-        if group is not None and len(found[group]) < per_group:
-            found[group].append((group, read_splat(folder / entry["file"]), record))
-    return [item for g in GROUPS for item in found[g]]
+    def candidates():
+        for entry in json.loads((folder / "index.json").read_text())["objects"]:
+            record = json.loads((folder / f"{Path(entry['file']).stem}.json").read_text())
+            yield record, lambda path=folder / entry["file"]: read_splat(path)
+
+    return first_per_group(candidates(), per_group)
 
 
 def draw_objects(per_group: int, gaussians: int, seed: int, max_draws: int = 2000) -> list[tuple[str, object, dict]]:
     """(group, cloud, record) for `per_group` test-split potted broadleaf trees of each group."""
     spec = load_class_table()["tree"]
-    found: dict[str, list] = {g: [] for g in GROUPS}
-    for i in range(max_draws):
-        cloud, record = build_object(spec, object_seed(seed, "test", i), gaussians)
-        group = group_of(record["shape"])
-        if group is not None and len(found[group]) < per_group:
-            found[group].append((group, cloud, record))
-        if all(len(v) >= per_group for v in found.values()):
-            break
-    return [item for g in GROUPS for item in found[g]]
+
+    def candidates():
+        for i in range(max_draws):
+            cloud, record = build_object(spec, object_seed(seed, "test", i), gaussians)
+            yield record, lambda cloud=cloud: cloud
+
+    return first_per_group(candidates(), per_group)
 
 
 SOFT_STEM_PA = 1e7  # a stem (labelled 1e9–1e10 Pa) read below this is read as soft as foliage
 
 
-def plant_row(rgb: np.ndarray, leaves: np.ndarray, stems: np.ndarray, E_true: np.ndarray,
+def plant_row(rgb: np.ndarray, leaves: np.ndarray, stems: np.ndarray, error: np.ndarray,
               E_pred: np.ndarray) -> dict:
-    """One plant (rgb (M,3), boolean part masks, true and predicted E in Pa): distance of its stems' mean RGB
-    from its leaves', the leaves' median log10 E error (decades), the share of stem Gaussians read below
-    SOFT_STEM_PA, and the mean squared log10 E error over all its Gaussians (decades²): does it read stems and
-    leaves apart?"""
-    error = np.log10(E_pred) - np.log10(E_true)
+    """One plant (rgb (M,3), boolean part masks, every Gaussian's log10 E error in decades, predicted E in Pa):
+    distance of its stems' mean RGB from its leaves', the leaves' median error, the share of stem Gaussians
+    read below SOFT_STEM_PA, and the mean squared error over all its Gaussians (decades²): does it read stems
+    and leaves apart?"""
     return {"stem_leaf_rgb_distance": float(np.linalg.norm(rgb[stems].mean(0) - rgb[leaves].mean(0))),
             "leaf_median_log10_error": float(np.median(error[leaves])),
             "stems_read_soft": float(np.mean(E_pred[stems] < SOFT_STEM_PA)),
@@ -103,11 +113,11 @@ def leaf_errors(checkpoint: str | None, objects: list) -> dict[str, dict]:
         leaves, stems = (cloud.extras["part_id"] == names.index(n) for n in ("leaves", "trunk"))
         _, E_true, _, _ = cloud.get_materials()
         _, E_pred, _, _ = annotate_cloud(cloud, checkpoint, device="cpu").get_materials()
-        error = np.log10(E_pred[leaves]) - np.log10(E_true[leaves])
+        error = np.log10(E_pred) - np.log10(E_true)
         rows[group]["E"].append(E_pred[leaves])
-        rows[group]["err"].append(error)
+        rows[group]["err"].append(error[leaves])
         if group == GROUPS[0]:
-            rows[group]["plants"].append(plant_row(cloud.rgb(), leaves, stems, E_true, E_pred))
+            rows[group]["plants"].append(plant_row(cloud.rgb(), leaves, stems, error, E_pred))
     out = {}
     for group, r in rows.items():
         if not r["E"]:
@@ -131,7 +141,8 @@ def main() -> None:
     ap.add_argument("--split-dir", type=Path, default=None, metavar="DIR/SPLIT",
                     help="read the trees of this generated split folder instead of drawing test-split ones")
     ap.add_argument("--per-plant", action="store_true",
-                    help="also print each broad-leaved plant: stem-leaf colour distance, leaf error, stems read soft")
+                    help="also print each broad-leaved plant (stem-leaf colour distance, leaf error, stems read soft, "
+                         "log10 E MSE) and the figures over the plants")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     set_quiet(True)
