@@ -64,6 +64,11 @@ def add_parser(sub: argparse._SubParsersAction, parents: list) -> argparse.Argum
     p.add_argument("--build-objects", type=int, default=None, metavar="N",
                    help="objects whose input grids are built in one pass, several steps' worth (default: up to "
                    "128 on CUDA as memory allows, one step on the CPU)")
+    p.add_argument("--part-balance", type=float, default=0.0, metavar="ALPHA",
+                   help="weigh each voxel of the loss by (object voxels / (parts · part voxels))^ALPHA, a part being "
+                   "the voxels of one object with one material class and one decade of E, so an object's small "
+                   "parts (a plant's stems, a mug's handle) count as much as its large ones at ALPHA 1; each "
+                   "object keeps its share of the loss; validation stays unweighted (default 0: off)")
     p.add_argument("--anchor-weight", type=float, default=0.0, metavar="W",
                    help="with --init: add W · Σ (θ − θ_init)² to the loss (L2-SP), keeping a fine-tune near its start "
                    "weights; every epoch logs that sum as drift_sq (default 0: no penalty)")
@@ -136,6 +141,8 @@ def run(args: argparse.Namespace) -> int:
     for flag, value in (("--decal-share", args.decal_share), ("--hue-share", args.hue_share)):
         if not 0.0 <= value <= 1.0:
             raise InputError(f"{flag} must be within 0–1 (got {value})")
+    if not 0.0 <= args.part_balance <= 1.0:
+        raise InputError(f"--part-balance must be within 0–1 (got {args.part_balance})")
     if not (math.isfinite(args.anchor_weight) and args.anchor_weight >= 0.0):
         raise InputError(f"--anchor-weight must be a finite number ≥ 0 (got {args.anchor_weight})")
     if args.anchor_weight > 0 and not args.init:
@@ -162,7 +169,8 @@ def run(args: argparse.Namespace) -> int:
                       decal_share=args.decal_share, hue_share=args.hue_share,
                       limit_train=args.limit_train, limit_val=args.limit_val, input_mode=args.inputs,
                       init_from=args.init, objects_per_build=args.build_objects, keep_epochs=args.keep_epochs,
-                      anchor_weight=args.anchor_weight, freeze=freeze, distill_from=args.distill,
+                      part_balance=args.part_balance, anchor_weight=args.anchor_weight, freeze=freeze,
+                      distill_from=args.distill,
                       distill_weight=distill_weight, distill_skip=distill_skip,
                       teacher_pool=args.teacher_pool, teacher_pool_repeat=args.teacher_pool_repeat,
                       model={"base_channels": args.base_channels, "multipliers": mults, "res_blocks": args.res_blocks,

@@ -25,6 +25,7 @@ from .checkpoint import FeatureSpec, LoadedModel, load_training_state, save_chec
 from .distill import Distillation, check_teacher_fits, distillation_loss, kept_objects, load_teacher
 from .distributed import SINGLE, DistContext, barrier, from_main, global_batch_loss, rank_share, sum_across
 from .evaluate import evaluate_store
+from .part_balance import part_balance_weights
 from .predict import grid_channel_names, object_feature_summary, select_inputs
 from .step_batches import default_objects_per_build, step_batches
 from .unet import DECODER_PARTS, ENCODER_PARTS, MaterialUNet, ModelConfig, masked_loss
@@ -39,6 +40,7 @@ class TrainConfig:
     warmup_steps: int = 100  # optimiser steps of linear warm-up before the cosine decay
     time_budget_s: float | None = None
     class_weight: float = 1.0
+    part_balance: float = 0.0  # α of part_balance.part_balance_weights: small parts of an object weigh more (0: off)
     seed: int = 0
     augment: bool = True
     tilt_max_deg: float = AugmentConfig.tilt_max_deg  # augmentation: tilt a share of objects by up to this angle
@@ -127,20 +129,26 @@ def load_init_weights(net, init_model, init_config: ModelConfig, config: ModelCo
 
 
 def batch_loss(model, batch: Batch, counts: bool, names: list[str], inputs: list[str], class_weight: float,
-               use_amp: bool, ctx: DistContext = SINGLE, distill: Distillation | None = None):
+               use_amp: bool, ctx: DistContext = SINGLE, distill: Distillation | None = None,
+               part_balance: float = 0.0):
     """Run the model on this rank's share of a global batch (see step_batches.py): returns (loss to
     back-propagate, the loss value of the whole global batch, its parts).
 
     `distill` (teacher, which objects take part, weight) adds weight · distillation_loss over the kept
     objects' voxels of the whole global batch (parts["distill"]: its unweighted value); the reported loss
-    value stays the label loss."""
+    value stays the label loss. `part_balance` > 0 weighs each voxel by its part's size within its object
+    (part_balance.py), so an object's small parts count as much as its large ones."""
     import torch
 
     x = select_inputs(batch.inputs, names, inputs)
     with torch.autocast("cuda", dtype=torch.bfloat16, enabled=use_amp):
         logits, physical = model(x)
+    weight = None
+    if part_balance > 0:
+        weight = part_balance_weights(batch.target_class, batch.target_physical, batch.occupied, part_balance,
+                                      logits.shape[1])
     loss, parts = masked_loss(logits, physical, batch.target_class, batch.target_physical, batch.occupied,
-                              class_weight)
+                              class_weight, weight)
     if ctx.enabled:
         loss, value, parts = global_batch_loss(loss, parts, int(batch.occupied.sum()), counts, class_weight, ctx,
                                                str(batch.occupied.device))
@@ -366,7 +374,7 @@ def train(data_dir: str | Path, out: str | Path, cfg: TrainConfig, device: str =
                                     device=batch.occupied.device)
                 distill = Distillation(teacher.model, keep, cfg.distill_weight)
             loss, value, parts = batch_loss(model, batch, counts, names, inputs, cfg.class_weight, use_amp, dist,
-                                            distill)
+                                            distill, cfg.part_balance)
             if cfg.anchor_weight > 0:  # every rank adds the same term: DDP's gradient mean keeps it as is
                 loss = loss + cfg.anchor_weight * squared_distance(net, anchor)
             if summarised < FEATURE_STATS_OBJECTS:

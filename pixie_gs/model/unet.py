@@ -152,19 +152,26 @@ class MaterialUNet(nn.Module):
 
 
 def masked_loss(logits: torch.Tensor, physical: torch.Tensor, target_class: torch.Tensor,
-                target_physical: torch.Tensor, occupied: torch.Tensor, class_weight: float = 1.0
-                ) -> tuple[torch.Tensor, dict[str, float]]:
+                target_physical: torch.Tensor, occupied: torch.Tensor, class_weight: float = 1.0,
+                voxel_weight: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, float]]:
     """λ·CE + MSE(log E) + MSE(ν) + MSE(log ρ), averaged over occupied voxels only.
 
     logits (B,8,N,N,N), physical (B,3,…), target_class (B,N,N,N) long, target_physical (B,3,…),
-    occupied (B,N,N,N) bool. Returns (loss, parts as floats).
+    occupied (B,N,N,N) bool; voxel_weight (B,N,N,N), optional, weighs each occupied voxel's terms
+    (part_balance.part_balance_weights: they sum to the occupied count, so the scale stays a mean).
+    Returns (loss, parts as floats).
     """
     occ = occupied.reshape(-1)
     count = occ.sum().clamp_min(1)
     lg = logits.permute(0, 2, 3, 4, 1).reshape(-1, logits.shape[1])[occ].float()
-    ce = nn.functional.cross_entropy(lg, target_class.reshape(-1)[occ], reduction="sum") / count
     diff = (physical.float() - target_physical.float()).permute(0, 2, 3, 4, 1).reshape(-1, 3)[occ]
-    mse = (diff ** 2).sum(dim=0) / count
+    if voxel_weight is None:
+        ce = nn.functional.cross_entropy(lg, target_class.reshape(-1)[occ], reduction="sum") / count
+        mse = (diff ** 2).sum(dim=0) / count
+    else:
+        w = voxel_weight.reshape(-1)[occ].float()
+        ce = (w * nn.functional.cross_entropy(lg, target_class.reshape(-1)[occ], reduction="none")).sum() / count
+        mse = (w[:, None] * diff ** 2).sum(dim=0) / count
     loss = class_weight * ce + mse.sum()
     parts = mse.detach().cpu().tolist()
     return loss, {"ce": float(ce.detach()), "mse_log_E": parts[0], "mse_nu": parts[1], "mse_log_rho": parts[2]}
