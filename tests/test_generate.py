@@ -627,3 +627,30 @@ def test_filter_split_keeps_exactly_the_broad_leaved_trees(tmp_path: Path):
     assert index["count"] == len(leafy) and index["class_counts"] == {"tree": len(leafy)}
     assert sorted(p.name for p in folder.glob("*.ply")) == leafy
     assert len(list_objects(tmp_path, "train")) == len(leafy)
+
+
+def test_filter_split_drops_classes_then_keeps_the_first_n(tmp_path: Path):
+    """scripts/filter_split.py --drop-classes / --first (the overfit checks' subsets): the dropped classes'
+    files go, then all but the first N left in drawing order; the index says what is left; run as a script."""
+    import subprocess
+    import sys
+
+    assert main(["generate", str(tmp_path), "--count", "12", "--split", "train", "--seed", "5",
+                 "--classes", "mugs,stones,tree", *SMALL]) == 0
+    folder = tmp_path / "train"
+    drawn = json.loads((folder / "index.json").read_text())["objects"]
+    expected = [e["file"] for e in drawn if e["class"] != "stones"][:5]
+    assert len({e["class"] for e in drawn}) == 3 and len(expected) == 5  # every class drawn, enough left
+    script = Path(__file__).resolve().parents[1] / "scripts" / "filter_split.py"
+    done = subprocess.run([sys.executable, str(script), str(tmp_path), "train", "--drop-classes", "stones",
+                           "--first", "5"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    index = json.loads((folder / "index.json").read_text())
+    assert [e["file"] for e in index["objects"]] == expected
+    assert sorted(p.name for p in folder.glob("*.ply")) == sorted(expected)
+    assert index["count"] == 5 and "stones" not in index["class_counts"] and index["drawn"] == 12
+    assert [path.name for path in list_objects(tmp_path, "train")] == expected
+    bad = subprocess.run([sys.executable, str(script), str(tmp_path), "train", "--first", "0"],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "--first" in bad.stderr
+    assert sorted(p.name for p in folder.glob("*.ply")) == sorted(expected)  # a refused call removes nothing
