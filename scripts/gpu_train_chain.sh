@@ -2,7 +2,7 @@
 # A training run longer than one device call (each call ends within 10 minutes; a warm machine keeps its
 # processes and files for ~30 s after a call, so back-to-back calls see the same run):
 #   start   install the wheels carried in .whl_model (plyfile, trimesh, tqdm), launch
-#           scripts/gpu_train_default.sh detached (setsid, survives the call) with its output in $RUN,
+#           $SCRIPT (default scripts/gpu_train_default.sh) detached (setsid, survives the call) with its output in $RUN,
 #           then watch it
 #   watch   watch the run again
 # Each call returns after WATCH_S seconds or when the run ends, whichever comes first, and copies the
@@ -19,6 +19,7 @@ mode=${1:?usage: gpu_train_chain.sh start|watch}
 OUT=${OUT:?set OUT to the folder that comes back}
 RUN=${RUN:-/root/run}
 WATCH_S=${WATCH_S:-540}
+SCRIPT=${SCRIPT:-scripts/gpu_train_default.sh}  # the run to launch (scripts/gpu_two_stage.sh for the two-stage run)
 EPOCHS_PER_TAR=${EPOCHS_PER_TAR:-6}   # --keep-epochs weights per tar sent back (≤ 16 MiB a file)
 T0=$(date +%s)
 mkdir -p "$OUT"
@@ -32,7 +33,7 @@ if [ "$mode" = start ]; then
   fi
   export PYTHONPATH=$PWD:${PYTHONPATH:-}
   nvidia-smi --query-gpu=name,memory.total --format=csv,noheader 2>/dev/null
-  OUT=$RUN setsid nohup bash scripts/gpu_train_default.sh >"$RUN/daemon.txt" 2>&1 < /dev/null &
+  OUT=$RUN setsid nohup bash "$SCRIPT" >"$RUN/daemon.txt" 2>&1 < /dev/null &
   echo $! >"$RUN/pid"
   echo "started run in $RUN (pid $(cat "$RUN/pid"))"
 elif [ "$mode" != watch ]; then
@@ -47,21 +48,32 @@ fi
 
 running() { kill -0 "$(cat "$RUN/pid" 2>/dev/null)" 2>/dev/null; }
 snapshot() {
-  # at most 8 files come back per call (16 MiB each): five here (daemon.txt stays on the machine; log.txt has
-  # its lines), and the --keep-epochs weights not sent before go in tars of up to EPOCHS_PER_TAR (2.5 MB each)
+  # at most 8 files come back per call (16 MiB each): the fixed files here (daemon.txt stays on the machine;
+  # log.txt has its lines), any other JSON files of the run in one json.tar, and the --keep-epochs weights not
+  # sent before in tars of up to EPOCHS_PER_TAR (2.5 MB each), one stem per tar (epochs_NN-MM.tar for
+  # pixie_default, epochs_STEM_NN-MM.tar for others) in the slots left
+  local sent=0 f
   for f in pixie_default.pt pixie_default.pt.state.pt train_pixie_default.json train_logs.json eval_pixie_default.json log.txt; do
-    [ -f "$RUN/$f" ] && cp "$RUN/$f" "$OUT/"
+    [ -f "$RUN/$f" ] && cp "$RUN/$f" "$OUT/" && sent=$((sent + 1))
   done
-  local new=() f
-  for f in $(ls "$RUN" | grep -E '^pixie_default\.epoch[0-9]+\.pt$' | sort -V); do  # epoch order, 99 before 100
+  local others=()
+  for f in $(ls "$RUN" | grep -E '\.json$'); do
+    case "$f" in train_pixie_default.json|train_logs.json|eval_pixie_default.json) ;; *) others+=("$f") ;; esac
+  done
+  [ ${#others[@]} -gt 0 ] && tar -cf "$OUT/json.tar" -C "$RUN" "${others[@]}" && sent=$((sent + 1))
+  local new=()
+  for f in $(ls "$RUN" | grep -E '^[A-Za-z0-9_-]+\.epoch[0-9]+\.pt$' | sort -V); do  # stem, then epoch order
     grep -qxF "$f" "$RUN/epochs_sent.txt" 2>/dev/null || new+=("$f")
   done
-  local i=0
-  while [ $i -lt ${#new[@]} ] && [ $(( i / EPOCHS_PER_TAR )) -lt 3 ]; do
-    local chunk=("${new[@]:$i:$EPOCHS_PER_TAR}")
-    local first=${chunk[0]#pixie_default.epoch} last=${chunk[-1]#pixie_default.epoch}
-    tar -cf "$OUT/epochs_${first%.pt}-${last%.pt}.tar" -C "$RUN" "${chunk[@]}" && printf '%s\n' "${chunk[@]}" >>"$RUN/epochs_sent.txt"
-    i=$(( i + EPOCHS_PER_TAR ))
+  local i=0 stem chunk first last name
+  while [ $i -lt ${#new[@]} ] && [ $sent -lt 8 ]; do
+    stem=${new[$i]%%.epoch*}; chunk=()
+    while [ $i -lt ${#new[@]} ] && [ ${#chunk[@]} -lt "$EPOCHS_PER_TAR" ] && [ "${new[$i]%%.epoch*}" = "$stem" ]; do
+      chunk+=("${new[$i]}"); i=$((i + 1))
+    done
+    first=${chunk[0]#"$stem".epoch} last=${chunk[-1]#"$stem".epoch}
+    name=epochs_${first%.pt}-${last%.pt}.tar; [ "$stem" = pixie_default ] || name=epochs_${stem}_${first%.pt}-${last%.pt}.tar
+    tar -cf "$OUT/$name" -C "$RUN" "${chunk[@]}" && printf '%s\n' "${chunk[@]}" >>"$RUN/epochs_sent.txt" && sent=$((sent + 1))
   done
   python3 - "$RUN" <<'PY' || true
 import json, pathlib, sys

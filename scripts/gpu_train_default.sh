@@ -37,6 +37,7 @@ VAL_TIERS=${VAL_TIERS:-"100:4000 100:12000 70:30000 30:60000"}
 TEST_TIERS=${TEST_TIERS:-"100:5000 100:20000 100:50000"}
 # REUSE_DATA=1 trains on a dataset an earlier run on this machine left in $DATA (made from the same tiers and
 # SEED, as $DATA/made_from.txt records), so a second fine-tune in one device session skips generation
+# DATA_ONLY=1 makes the dataset and stops (no training)
 # GEN_ARGS go to every `pixie generate` call (e.g. GEN_ARGS='--lighting 0' for a control without baked lighting)
 GEN_ARGS=${GEN_ARGS:-}
 MADE_FROM="SEED=$SEED TRAIN_TIERS=$TRAIN_TIERS VAL_TIERS=$VAL_TIERS TEST_TIERS=$TEST_TIERS GEN_ARGS=$GEN_ARGS"
@@ -83,6 +84,9 @@ done
 rm -rf "$DATA/parts"
 echo "$MADE_FROM" >"$DATA/made_from.txt"
 du -sh "$DATA" >>"$LOG"
+# DATA_ONLY=1 stops here: the dataset for a run that trains elsewhere (scripts/gpu_two_stage.sh makes stage 2's
+# while stage 1 trains)
+[ "${DATA_ONLY:-0}" = 1 ] && { say "data only: done"; exit 0; }
 NOW=$(elapsed)
 FULL_BUDGET=$(( TOTAL_S - NOW - RESERVE_S ))     # leave time for loading + test evaluation
 ABL_BUDGET=$(( FULL_BUDGET * 45 / 100 ))

@@ -26,7 +26,9 @@ def merge(out_dir: Path, split: str, parts: list[Path]) -> int:
             record = json.loads((part / split / f"{stem}.json").read_text())
             record["file"] = f"{new}.ply"
             (target / f"{new}.json").write_text(json.dumps(record))
-            entries.append({**e, "file": f"{new}.ply", "part": k, "gaussians_requested": index["gaussians_requested"]})
+            # a merged part already names each object's count; a generated one names its own
+            requested = e.get("gaussians_requested", index.get("gaussians_requested"))
+            entries.append({**e, "file": f"{new}.ply", "part": k, "gaussians_requested": requested})
         lists.append(entries)
     merged = [lst[i] for i in range(max(map(len, lists))) for lst in lists if i < len(lst)]
     classes = sorted({e["class"] for e in merged})

@@ -1,0 +1,79 @@
+#!/usr/bin/env bash
+# Two-stage fine-tune on one GPU, one detached run (docs/training.md, "Two-stage run"). Stage 1 fine-tunes START
+# on broad-leaved plants alone, so the network learns their stems and leaves apart; stage 2 trains every kind at a
+# low rate from stage 1's last epoch, as two arms side by side on the same GPU (ARM_A, ARM_B: `pixie train`
+# options each), so one run tells which keeps the plants apart and wins the other kinds back. Stage 2's other
+# kinds are generated while stage 1 trains; its plants are stage 1's, copied in. Launch it through
+# scripts/gpu_train_chain.sh (SCRIPT=scripts/gpu_two_stage.sh) so each device call brings back the epoch weights
+# (s1, A, B), the logs and the evaluations on stage 2's test split.
+# CPU smoke test (about 4 min on 2 cores):
+#   S1_TIERS='60:2000:broadleaf' S1_VAL_TIERS='30:2000:broadleaf' S2_TIERS='20:2000' S2_VAL_TIERS='6:2000' \
+#   TEST_TIERS='6:2000' DEVICE=cpu WORKERS=2 S1_BUDGET_S=40 TOTAL_S=400 RESERVE_S=60 \
+#   S1_ARGS='--batch-size 4 --epochs 2' ARM_A='--batch-size 4 --lr 3e-4' ARM_B='--batch-size 4 --lr 3e-4 --hue-share 0.5' \
+#   OUT=/tmp/two scripts/gpu_two_stage.sh
+set -u -o pipefail
+START_TIME=$(date +%s)
+OUT=${OUT:?set OUT to the output folder}
+DEVICE=${DEVICE:-cuda}; WORKERS=${WORKERS:-16}; TOTAL_S=${TOTAL_S:-1000}; RESERVE_S=${RESERVE_S:-90}
+LOAD_S=${LOAD_S:-90}               # time allowed for reading a dataset before training starts
+START=${START:-$PWD/pixie_gs/data/checkpoints/pixie_default.pt}
+S1_TIERS=${S1_TIERS:-"2400:12000:broadleaf 600:30000:broadleaf"}
+S1_VAL_TIERS=${S1_VAL_TIERS:-"200:12000:broadleaf"}
+S2_TIERS=${S2_TIERS:-"500:4000 550:12000 450:30000 250:60000 125:120000 200:4000:clean 200:12000:clean 150:30000:clean 250:12000:leftovers 150:30000:leftovers 600:12000:capture:tree 200:30000:capture:tree"}
+S2_VAL_TIERS=${S2_VAL_TIERS:-"30:4000 35:12000 25:30000 20:12000:clean 40:12000:capture:tree"}
+TEST_TIERS=${TEST_TIERS:-"30:8000:clean"}
+S1_SEED=${S1_SEED:-40}; S2_SEED=${S2_SEED:-41}
+S1_BUDGET_S=${S1_BUDGET_S:-240}    # stage 1's training budget, s (its --epochs may end it sooner)
+S1_ARGS=${S1_ARGS:-"--batch-size 16 --lr 1e-3 --warmup-steps 20 --hue-share 0 --epochs 16"}
+ARM_A=${ARM_A:-"--batch-size 16 --lr 3e-4 --hue-share 0 --tilt-deg 40 --tilt-share 0.5"}
+ARM_B=${ARM_B:-"--batch-size 16 --lr 3e-4 --hue-share 0.5 --tilt-deg 40 --tilt-share 0.5 --distill $START --distill-weight 3 --distill-skip tree,sand,snow_mud,metal_tools,cloth,long_produce"}
+export PYTHONUNBUFFERED=1 OMP_NUM_THREADS=${OMP_NUM_THREADS:-4}
+P="python3 -m pixie_gs.cli.main"
+HALF=$(( WORKERS / 2 > 0 ? WORKERS / 2 : 1 ))
+D1=$OUT/data_s1 D2O=$OUT/data_s2_other D2=$OUT/data_s2
+LOG=$OUT/log.txt
+mkdir -p "$OUT"
+elapsed() { echo $(( $(date +%s) - START_TIME )); }
+say() { echo "[$(elapsed) s] $*" | tee -a "$LOG"; }
+make_data() {  # dir seed train-tiers val-tiers workers: one dataset through gpu_train_default.sh's tiers
+  mkdir -p "$1.gen"
+  DATA_ONLY=1 DATA=$1 SEED=$2 TRAIN_TIERS=$3 VAL_TIERS=$4 TEST_TIERS=$TEST_TIERS WORKERS=$5 OUT=$1.gen \
+    bash scripts/gpu_train_default.sh >/dev/null 2>&1
+  local rc=$?; cat "$1.gen/log.txt" >>"$LOG"; return $rc
+}
+train() {  # name data budget-s extra-args...: train, keep every epoch, evaluate the last on the data's test split
+  local name=$1 data=$2 budget=$3; shift 3
+  timeout $(( budget + LOAD_S )) $P train "$data" --out "$OUT/$name.pt" --device $DEVICE --time-budget-s $budget \
+    --keep-epochs --log-json "$OUT/train_$name.json" -q "$@" >>"$LOG" 2>&1 && say "trained $name" || say "train $name failed"
+  local last; last=$(ls "$OUT" | grep -E "^$name\.epoch[0-9]+\.pt$" | sort -V | tail -1)
+  [ -n "$last" ] && timeout 180 $P evaluate "$OUT/$last" "$data" --split test --device $DEVICE --workers $HALF -q \
+    --json "$OUT/eval_$name.json" >"$OUT/eval_$name.txt" 2>&1 && say "evaluated $last" || say "evaluate $name failed"
+}
+
+say "host: $(nproc --all) cores; $(python3 -c 'import torch;print(torch.__version__, torch.cuda.is_available() and torch.cuda.get_device_name(0))')"
+# stage 2's data is the longest job: it starts at once, beside stage 1's data and then stage 1's training
+make_data "$D2O" "$S2_SEED" "$S2_TIERS" "$S2_VAL_TIERS" "$HALF" &
+gen_pid=$!
+make_data "$D1" "$S1_SEED" "$S1_TIERS" "$S1_VAL_TIERS" "$HALF" || { say "stage 1 data failed"; exit 1; }
+say "stage 1 data: $(du -sh "$D1" | cut -f1)"
+train s1 "$D1" "$S1_BUDGET_S" --init "$START" --workers $HALF --seed $S1_SEED $S1_ARGS
+wait $gen_pid || { say "stage 2 data failed"; exit 1; }
+S1_LAST=$(ls "$OUT" | grep -E '^s1\.epoch[0-9]+\.pt$' | sort -V | tail -1)
+[ -n "$S1_LAST" ] || { say "stage 1 left no epoch"; exit 1; }
+# stage 1's other epochs are not needed (stage 2 starts from the last): removed before any call carries them
+ls "$OUT" | grep -E '^s1\.epoch[0-9]+\.pt$' | grep -vxF "$S1_LAST" | while read -r f; do rm -f "$OUT/$f"; done
+# stage 2's data: the other kinds plus stage 1's plants (copied: merge_splits moves the files)
+cp -r "$D1" "$D1.copy" && rm -rf "$D2" && mkdir -p "$D2" \
+  && python3 scripts/merge_splits.py "$D2" train "$D2O" "$D1.copy" >>"$LOG" \
+  && python3 scripts/merge_splits.py "$D2" val "$D2O" "$D1.copy" >>"$LOG" \
+  && mv "$D2O/test" "$D2/test" && rm -rf "$D1.copy" || { say "stage 2 merge failed"; exit 1; }
+say "stage 2 data: $(du -sh "$D2" | cut -f1); from $S1_LAST"
+S2_BUDGET_S=$(( TOTAL_S - $(elapsed) - RESERVE_S - LOAD_S ))
+[ $S2_BUDGET_S -lt 30 ] && { say "no time left for stage 2 ($S2_BUDGET_S s)"; exit 1; }
+say "stage 2: two arms, ${S2_BUDGET_S} s each"
+train A "$D2" $S2_BUDGET_S --init "$OUT/$S1_LAST" --workers $HALF --seed $S2_SEED $ARM_A &
+sleep 5
+train B "$D2" $S2_BUDGET_S --init "$OUT/$S1_LAST" --workers $HALF --seed $S2_SEED $ARM_B &
+wait
+rm -f "$OUT"/*.state.pt "$OUT"/eval_*.txt
+say "done"
