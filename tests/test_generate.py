@@ -654,3 +654,27 @@ def test_filter_split_drops_classes_then_keeps_the_first_n(tmp_path: Path):
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "--first" in bad.stderr
     assert sorted(p.name for p in folder.glob("*.ply")) == sorted(expected)  # a refused call removes nothing
+
+
+def test_merge_splits_merges_a_merged_part_with_a_generated_one(tmp_path: Path):
+    """scripts/merge_splits.py on a part that is itself a merge (gpu_two_stage.sh copies stage 1's merged plants
+    into stage 2's data): every object moves once, keeps its own Gaussian count, and the merge loads."""
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "merge_splits.py"
+    for name, seed, count, gaussians in (("a", 3, 2, 1500), ("b", 4, 2, 1500), ("c", 6, 3, 1800)):
+        assert main(["generate", str(tmp_path / name), "--count", str(count), "--split", "train", "--seed",
+                     str(seed), "--classes", "mugs", "--gaussians", str(gaussians), "--quiet"]) == 0
+    first = subprocess.run([sys.executable, str(script), str(tmp_path / "ab"), "train",
+                            str(tmp_path / "a"), str(tmp_path / "b")], capture_output=True, text=True)
+    assert first.returncode == 0, first.stderr
+    again = subprocess.run([sys.executable, str(script), str(tmp_path / "abc"), "train",
+                            str(tmp_path / "ab"), str(tmp_path / "c")], capture_output=True, text=True)
+    assert again.returncode == 0, again.stderr
+    index = json.loads((tmp_path / "abc" / "train" / "index.json").read_text())
+    assert index["count"] == 7 and len({e["file"] for e in index["objects"]}) == 7
+    assert sorted(e["gaussians_requested"] for e in index["objects"]) == [1500] * 4 + [1800] * 3
+    assert all(e["gaussians_requested"] == (1500 if e["file"].startswith("p0_") else 1800) for e in index["objects"])
+    assert len(list_objects(tmp_path / "abc", "train")) == 7
+    assert not list((tmp_path / "ab" / "train").glob("*.ply"))  # moved, not copied
