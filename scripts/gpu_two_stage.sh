@@ -23,6 +23,7 @@ S2_TIERS=${S2_TIERS:-"500:4000 550:12000 450:30000 250:60000 125:120000 200:4000
 S2_VAL_TIERS=${S2_VAL_TIERS:-"30:4000 35:12000 25:30000 20:12000:clean 40:12000:capture:tree"}
 TEST_TIERS=${TEST_TIERS:-"30:8000:clean"}
 S1_SEED=${S1_SEED:-40}; S2_SEED=${S2_SEED:-41}
+PLANT_COPIES=${PLANT_COPIES:-1}    # times stage 1's plants enter stage 2's train split
 S1_BUDGET_S=${S1_BUDGET_S:-240}    # stage 1's training budget, s (its --epochs may end it sooner)
 S1_ARGS=${S1_ARGS:-"--batch-size 16 --lr 1e-3 --warmup-steps 20 --hue-share 0 --epochs 16"}
 ARM_A=${ARM_A:-"--batch-size 16 --lr 3e-4 --hue-share 0 --tilt-deg 40 --tilt-share 0.5"}
@@ -62,11 +63,14 @@ S1_LAST=$(ls "$OUT" | grep -E '^s1\.epoch[0-9]+\.pt$' | sort -V | tail -1)
 [ -n "$S1_LAST" ] || { say "stage 1 left no epoch"; exit 1; }
 # stage 1's other epochs are not needed (stage 2 starts from the last): removed before any call carries them
 ls "$OUT" | grep -E '^s1\.epoch[0-9]+\.pt$' | grep -vxF "$S1_LAST" | while read -r f; do rm -f "$OUT/$f"; done
-# stage 2's data: the other kinds plus stage 1's plants (copied: merge_splits moves the files)
-cp -r "$D1" "$D1.copy" && rm -rf "$D2" && mkdir -p "$D2" \
-  && python3 scripts/merge_splits.py "$D2" train "$D2O" "$D1.copy" >>"$LOG" \
-  && python3 scripts/merge_splits.py "$D2" val "$D2O" "$D1.copy" >>"$LOG" \
-  && mv "$D2O/test" "$D2/test" && rm -rf "$D1.copy" || { say "stage 2 merge failed"; exit 1; }
+# stage 2's data: the other kinds plus stage 1's plants, PLANT_COPIES times in train (copied: merge_splits moves
+# the files; more copies raise the plants' share of each epoch, about 10 % with one copy of the default tiers)
+copies=()
+for k in $(seq 1 "$PLANT_COPIES"); do cp -r "$D1" "$D1.copy$k" && copies+=("$D1.copy$k") || { say "copy failed"; exit 1; }; done
+rm -rf "$D2" && mkdir -p "$D2" \
+  && python3 scripts/merge_splits.py "$D2" train "$D2O" "${copies[@]}" >>"$LOG" \
+  && python3 scripts/merge_splits.py "$D2" val "$D2O" "${copies[0]}" >>"$LOG" \
+  && mv "$D2O/test" "$D2/test" && rm -rf "${copies[@]}" || { say "stage 2 merge failed"; exit 1; }
 say "stage 2 data: $(du -sh "$D2" | cut -f1); from $S1_LAST"
 S2_BUDGET_S=$(( TOTAL_S - $(elapsed) - RESERVE_S - LOAD_S ))
 [ $S2_BUDGET_S -lt 30 ] && { say "no time left for stage 2 ($S2_BUDGET_S s)"; exit 1; }
