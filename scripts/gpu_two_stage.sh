@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Two-stage fine-tune on one GPU, one detached run (docs/training.md, "Two-stage run"). Stage 1 fine-tunes START
+# Two-stage fine-tune on one GPU, one detached run (docs/training.md, "Stop 51" and "Next run (planned after stop 51)"). Stage 1 fine-tunes START
 # on broad-leaved plants alone, so the network learns their stems and leaves apart; stage 2 trains every kind at a
 # low rate from stage 1's last epoch, as two arms side by side on the same GPU (ARM_A, ARM_B: `pixie train`
 # options each), so one run tells which keeps the plants apart and wins the other kinds back. Stage 2's other
