@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
-# Two-stage fine-tune on one GPU, one detached run (docs/training.md, "Stop 51" and "Next run (planned after stop 51)"). Stage 1 fine-tunes START
-# on broad-leaved plants alone, so the network learns their stems and leaves apart; stage 2 trains every kind at a
-# low rate from stage 1's last epoch, as two arms side by side on the same GPU (ARM_A, ARM_B: `pixie train`
-# options each), so one run tells which keeps the plants apart and wins the other kinds back. Stage 2's other
-# kinds are generated while stage 1 trains; its plants are stage 1's, copied in. Launch it through
-# scripts/gpu_train_chain.sh (SCRIPT=scripts/gpu_two_stage.sh) so each device call brings back the epoch weights
-# (s1, A, B), the logs and the evaluations on stage 2's test split.
+# Two-stage fine-tune on one GPU, one detached run (docs/training.md, "Stop 51" and "Next run (planned after stop
+# 51)"). Stage 1 fine-tunes START on broad-leaved plants alone, so the network learns their stems and leaves
+# apart; stage 2 trains every kind at a low rate from stage 1's last epoch, as two arms side by side on the same
+# GPU (ARM_A, ARM_B: `pixie train` options each), so one run tells which keeps the plants apart and wins the other
+# kinds back. Stage 2's other kinds are generated while stage 1 trains; its plants are stage 1's, copied in.
+# Launch it through scripts/gpu_train_chain.sh (SCRIPT=scripts/gpu_two_stage.sh) so each device call brings back
+# the epoch weights (s1, A, B), the logs and the evaluations on stage 2's test split.
 # CPU smoke test (about 4 min on 2 cores):
 #   S1_TIERS='60:2000:broadleaf' S1_VAL_TIERS='30:2000:broadleaf' S2_TIERS='20:2000' S2_VAL_TIERS='6:2000' \
 #   TEST_TIERS='6:2000' DEVICE=cpu WORKERS=2 S1_BUDGET_S=40 TOTAL_S=400 RESERVE_S=60 \
