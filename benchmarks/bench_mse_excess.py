@@ -9,6 +9,9 @@ prints each checkpoint's MSE, the floor (the baseline every checkpoint is compar
 ratio to the floor, how much of the excess the worst 10 and 20 objects carry, and those objects with
 their category, accuracy and excess per label (log E, ν, log ρ). A handful of whole-object category
 confusions (a book read as a cushion) look different here from an excess spread over every object.
+It also prints the MSE with every Gaussian given the mean prediction of its labelled part (the Gaussians
+that share one label): an oracle that knows the parts, so the most any smoothing of the outputs within a
+part could remove.
 
     python benchmarks/bench_mse_excess.py DATA_DIR                       # the shipped checkpoint
     python benchmarks/bench_mse_excess.py DATA_DIR --checkpoint a.pt --checkpoint b.pt --json excess.json
@@ -35,8 +38,20 @@ from pixie_gs.model.label_floor import record_floor_sums
 LABELS = ("log E", "nu", "log rho")
 
 
+def part_mean_squared_error(phys: np.ndarray, target: np.ndarray, true_class: np.ndarray) -> np.ndarray:
+    """(3,) squared error sums over Gaussians when each gets the mean of `phys` (M,3) over its labelled part,
+    the Gaussians sharing one (class, target row): the labels are drawn per part (dataset/labels.py)."""
+    key = np.concatenate([true_class[:, None].astype(np.float64), target.astype(np.float64)], axis=1)
+    _, part = np.unique(key, axis=0, return_inverse=True)
+    part = part.ravel()
+    counts = np.bincount(part)
+    means = np.stack([np.bincount(part, weights=phys[:, k]) / counts for k in range(phys.shape[1])], axis=1)
+    return ((means[part] - target) ** 2).sum(0)
+
+
 def per_object(checkpoint: str | None, data_dir: str, split: str) -> list[dict]:
-    """One row per object: file, category, Gaussians, accuracy, squared error sums (3,), floor sums (3,)."""
+    """One row per object: file, category, Gaussians, accuracy, squared error sums (3,), the same with each
+    labelled part's predictions averaged (3,), floor sums (3,)."""
     loaded = load_checkpoint(checkpoint, "cpu")
     records, _ = load_split(data_dir, split, list(loaded.features.extra_names))
     paths = split_paths(data_dir, split)
@@ -53,9 +68,11 @@ def per_object(checkpoint: str | None, data_dir: str, split: str) -> list[dict]:
             if floor is None:
                 raise SystemExit(f"{paths[i]}: its labels were not drawn from the installed class table; no floor")
             target = obj["physical"].cpu().numpy()
+            true_class = obj["material_id"].cpu().numpy()
             rows.append({"file": Path(paths[i]).name, "category": record.get("class"), "gaussians": len(mat),
-                         "accuracy": float((mat == obj["material_id"].cpu().numpy()).mean()),
+                         "accuracy": float((mat == true_class).mean()),
                          "se_sum": ((phys - target) ** 2).sum(0).tolist(),
+                         "part_mean_se_sum": part_mean_squared_error(phys, target, true_class).tolist(),
                          "floor_sum": (floor[0] * len(mat) / max(floor[1], 1)).tolist()})
     return rows
 
@@ -64,6 +81,7 @@ def summarise(rows: list[dict], top: int) -> dict:
     """Split MSE, floor, excess, the share of the excess the worst objects carry, and those objects."""
     n = sum(r["gaussians"] for r in rows)
     se = np.sum([r["se_sum"] for r in rows], 0) / n
+    part_mean = np.sum([r["part_mean_se_sum"] for r in rows], 0) / n
     floor = np.sum([r["floor_sum"] for r in rows], 0) / n
     excess = np.array([(np.array(r["se_sum"]) - np.array(r["floor_sum"])).mean() for r in rows]) / n
     order = np.argsort(-excess)
@@ -75,7 +93,8 @@ def summarise(rows: list[dict], top: int) -> dict:
               "share_of_excess": float(excess[i] / total) if total > 0 else 0.0} for i in order[:top]]
     accuracy = sum(r["accuracy"] * r["gaussians"] for r in rows) / n
     return {"objects": len(rows), "gaussians": n, "accuracy": accuracy, "mse": se.tolist(),
-            "mse_avg": float(se.mean()), "floor": floor.tolist(), "floor_avg": float(floor.mean()),
+            "mse_avg": float(se.mean()),
+            "part_mean_mse": part_mean.tolist(), "part_mean_mse_avg": float(part_mean.mean()), "floor": floor.tolist(), "floor_avg": float(floor.mean()),
             "excess_avg": float(se.mean() - floor.mean()), "carried_by_worst": carried, "worst": worst}
 
 
@@ -104,6 +123,8 @@ def main() -> None:
               f"{r['carried_by_worst'][10]:.0%} of it, the worst 20 {r['carried_by_worst'][20]:.0%}"
               + (" (over 100 %: the others sit below their floors on the whole, by the luck of the draw)"
                  if max(r["carried_by_worst"].values()) > 1 else "") + f" ({r['seconds']} s)")
+        print(f"  each labelled part's predictions averaged (an oracle for smoothing within parts): avg MSE "
+              f"{r['part_mean_mse_avg']:.4f} ({', '.join(f'{k} {v:.4f}' for k, v in zip(LABELS, r['part_mean_mse']))})")
         for w in r["worst"]:
             per = ", ".join(f"{k} {v:+.3f}" for k, v in zip(LABELS, w["excess_per_label"]))
             print(f"  {w['file']:<34} {w['category']:<18} acc {w['accuracy']:.3f}  excess {per}  "

@@ -9,7 +9,7 @@
 #   NPROC=2 ABLATIONS=0 TRAIN_TIERS='12:2000' VAL_TIERS='6:2000' TEST_TIERS='4:2000' DEVICE=cpu TOTAL_S=200 RESERVE_S=60 \
 #     WORKERS=1 EXTRA_TRAIN_ARGS='--resolution 32 --base-channels 8' OUT=/tmp/o scripts/gpu_train_default.sh
 set -u -o pipefail
-START=$(date +%s)
+START_TIME=$(date +%s)
 OUT=${OUT:?set OUT to the output folder}
 NABL=${NABL:-1500}                 # train objects used by each ablation model
 ABLATIONS=${ABLATIONS:-1}          # 0: train only the full model (it gets the whole GPU)
@@ -26,8 +26,8 @@ NPROC=${NPROC:-1}
 TRAIN_P=$P
 [ "$NPROC" -gt 1 ] && TRAIN_P="python3 -m torch.distributed.run --standalone --nproc_per_node $NPROC -m pixie_gs.cli.main"
 LOG=$OUT/log.txt
-elapsed() { echo $(( $(date +%s) - START )); }
-say() { echo "[$(elapsed) s] $*" | tee -a "$LOG"; }
+mkdir -p "$OUT"
+source "$(dirname "$0")/run_steps.sh"   # elapsed, say, train_then_evaluate
 
 say "host: $(nproc --all) cores; $(python3 -c 'import torch;print(torch.__version__, torch.cuda.is_available() and torch.cuda.get_device_name(0))')"
 # Each split mixes several Gaussian counts per object (tiers "COUNT:GAUSSIANS"), so the model sees
@@ -106,15 +106,11 @@ PY
 ) || { say "cannot read the training state to resume"; exit 1; }
   say "resuming: ${PRIOR_S} s trained before, up to ${FULL_BUDGET} s more"
 fi
-train() {  # name inputs budget extra-args...
+train() {  # name inputs budget extra-args...: the trainer's pick evaluated on the test split
   local name=$1 inputs=$2 budget=$3; shift 3
   local launcher=$P prior=0; [ "$name" = pixie_default ] && launcher=$TRAIN_P prior=$PRIOR_S
-  timeout $(( budget + LOAD_S )) $launcher train "$DATA" --out "$OUT/$name.pt" --device $DEVICE --epochs 200 \
-    --time-budget-s $(( budget + prior )) --inputs $inputs --workers $WORKERS --log-json "$OUT/train_$name.json" -q "$@" $EXTRA_TRAIN_ARGS \
-    >>"$LOG" 2>&1 && say "trained $name" || say "train $name failed"
-  timeout 120 $P evaluate "$OUT/$name.pt" "$DATA" --split test --device $DEVICE --workers $WORKERS -q \
-    --json "$OUT/eval_$name.json" >"$OUT/eval_$name.txt" 2>&1 && say "evaluated $name" || say "evaluate $name failed"
-  cat "$OUT/eval_$name.txt" >>"$LOG"
+  train_then_evaluate "$name" "$DATA" "$budget" $prior "$launcher" pick $WORKERS --epochs 200 --inputs $inputs \
+    --workers $WORKERS "$@" $EXTRA_TRAIN_ARGS
 }
 train pixie_default full $FULL_BUDGET &
 if [ "$ABLATIONS" != 0 ]; then

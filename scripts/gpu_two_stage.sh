@@ -34,8 +34,7 @@ HALF=$(( WORKERS / 2 > 0 ? WORKERS / 2 : 1 ))
 D1=$OUT/data_s1 D2O=$OUT/data_s2_other D2=$OUT/data_s2
 LOG=$OUT/log.txt
 mkdir -p "$OUT"
-elapsed() { echo $(( $(date +%s) - START_TIME )); }
-say() { echo "[$(elapsed) s] $*" | tee -a "$LOG"; }
+source "$(dirname "$0")/run_steps.sh"   # elapsed, say, train_then_evaluate
 make_data() {  # dir seed train-tiers val-tiers workers: one dataset through gpu_train_default.sh's tiers
   mkdir -p "$1.gen"
   DATA_ONLY=1 DATA=$1 SEED=$2 TRAIN_TIERS=$3 VAL_TIERS=$4 TEST_TIERS=$TEST_TIERS WORKERS=$5 OUT=$1.gen \
@@ -44,11 +43,7 @@ make_data() {  # dir seed train-tiers val-tiers workers: one dataset through gpu
 }
 train() {  # name data budget-s extra-args...: train, keep every epoch, evaluate the last on the data's test split
   local name=$1 data=$2 budget=$3; shift 3
-  timeout $(( budget + LOAD_S )) $P train "$data" --out "$OUT/$name.pt" --device $DEVICE --time-budget-s $budget \
-    --keep-epochs --log-json "$OUT/train_$name.json" -q "$@" >>"$LOG" 2>&1 && say "trained $name" || say "train $name failed"
-  local last; last=$(ls "$OUT" | grep -E "^$name\.epoch[0-9]+\.pt$" | sort -V | tail -1)
-  [ -n "$last" ] && timeout 180 $P evaluate "$OUT/$last" "$data" --split test --device $DEVICE --workers $HALF -q \
-    --json "$OUT/eval_$name.json" >"$OUT/eval_$name.txt" 2>&1 && say "evaluated $last" || say "evaluate $name failed"
+  train_then_evaluate "$name" "$data" "$budget" 0 "$P" last $HALF --keep-epochs "$@"
 }
 
 say "host: $(nproc --all) cores; $(python3 -c 'import torch;print(torch.__version__, torch.cuda.is_available() and torch.cuda.get_device_name(0))')"
