@@ -2,8 +2,9 @@
 # Two-stage fine-tune on one GPU, one detached run (docs/training.md, "Stop 51" and "Next run (planned after stop
 # 51)"). Stage 1 fine-tunes START on broad-leaved plants alone, so the network learns their stems and leaves
 # apart; stage 2 trains every kind at a low rate from stage 1's last epoch, as two arms side by side on the same
-# GPU (ARM_A, ARM_B: `pixie train` options each), so one run tells which keeps the plants apart and wins the other
-# kinds back. Stage 2's other kinds are generated while stage 1 trains; its plants are stage 1's, copied in.
+# GPU (ARM_A, ARM_B: `pixie train` options each), so one run tells which keeps the plants apart and wins the
+# other kinds back; ARM_B='' runs arm A alone with the whole GPU. Stage 2's other kinds are generated while
+# stage 1 trains; its plants are stage 1's, copied in.
 # Launch it through scripts/gpu_train_chain.sh (SCRIPT=scripts/gpu_two_stage.sh) so each device call brings back
 # the epoch weights (s1, A, B), the logs and the evaluations on stage 2's test split.
 # CPU smoke test (about 4 min on 2 cores):
@@ -27,7 +28,7 @@ PLANT_COPIES=${PLANT_COPIES:-1}    # times stage 1's plants enter stage 2's trai
 S1_BUDGET_S=${S1_BUDGET_S:-240}    # stage 1's training budget, s (its --epochs may end it sooner)
 S1_ARGS=${S1_ARGS:-"--batch-size 16 --lr 1e-3 --warmup-steps 20 --hue-share 0 --epochs 16"}
 ARM_A=${ARM_A:-"--batch-size 16 --lr 3e-4 --hue-share 0 --tilt-deg 40 --tilt-share 0.5"}
-ARM_B=${ARM_B:-"--batch-size 16 --lr 3e-4 --hue-share 0.5 --tilt-deg 40 --tilt-share 0.5 --distill $START --distill-weight 3 --distill-skip tree,sand,snow_mud,metal_tools,cloth,long_produce"}
+ARM_B=${ARM_B-"--batch-size 16 --lr 3e-4 --hue-share 0.5 --tilt-deg 40 --tilt-share 0.5 --distill $START --distill-weight 3 --distill-skip tree,sand,snow_mud,metal_tools,cloth,long_produce"}
 export PYTHONUNBUFFERED=1 OMP_NUM_THREADS=${OMP_NUM_THREADS:-4}
 P="python3 -m pixie_gs.cli.main"
 HALF=$(( WORKERS / 2 > 0 ? WORKERS / 2 : 1 ))
@@ -69,10 +70,15 @@ rm -rf "$D2" && mkdir -p "$D2" \
 say "stage 2 data: $(du -sh "$D2" | cut -f1); from $S1_LAST"
 S2_BUDGET_S=$(( TOTAL_S - $(elapsed) - RESERVE_S - LOAD_S ))
 [ $S2_BUDGET_S -lt 30 ] && { say "no time left for stage 2 ($S2_BUDGET_S s)"; exit 1; }
-say "stage 2: two arms, ${S2_BUDGET_S} s each"
-train A "$D2" $S2_BUDGET_S --init "$OUT/$S1_LAST" --workers $HALF --seed $S2_SEED $ARM_A &
-sleep 5
-train B "$D2" $S2_BUDGET_S --init "$OUT/$S1_LAST" --workers $HALF --seed $S2_SEED $ARM_B &
-wait
+if [ -n "$ARM_B" ]; then
+  say "stage 2: two arms, ${S2_BUDGET_S} s each"
+  train A "$D2" $S2_BUDGET_S --init "$OUT/$S1_LAST" --workers $HALF --seed $S2_SEED $ARM_A &
+  sleep 5
+  train B "$D2" $S2_BUDGET_S --init "$OUT/$S1_LAST" --workers $HALF --seed $S2_SEED $ARM_B &
+  wait
+else  # ARM_B='': arm A alone, with the whole GPU and every worker
+  say "stage 2: arm A alone, ${S2_BUDGET_S} s"
+  train A "$D2" $S2_BUDGET_S --init "$OUT/$S1_LAST" --workers $WORKERS --seed $S2_SEED $ARM_A
+fi
 rm -f "$OUT"/*.state.pt "$OUT"/eval_*.txt
 say "done"
