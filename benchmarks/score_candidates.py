@@ -9,14 +9,19 @@ run) and prints one row per checkpoint:
   plant checks of stops 47–51 trained on, and 5 of seed 4602 that none trained on: the median share of stem
   Gaussians read softer than 1e7 Pa (stems are labelled 1e9–1e10 Pa; lower is better), the median leaf
   error in decades of E and the mean squared log10 E error over the plants;
-- the real development set (`bench_real_set.py`, default flags): checks passed and the ones that fail.
-The sets are made once in WORK (about a minute) and reused; then about 70 s per checkpoint on 2 CPU cores.
+- the real development set (`bench_real_set.py`, default flags): checks passed, the checks the shipped
+  checkpoint fails, and for each candidate the checks it fails or passes unlike the shipped one;
+- with `--second DIR` / `--third DIR` (the published files, as `real_holdout/rh_fetch.sh DIR` and
+  `real_third/r3_fetch.sh DIR` lay them out), the second and third real sets the same way.
+The sets are made once in WORK (about a minute) and reused; then about 70 s per checkpoint on 2 CPU cores,
+and about a minute more per checkpoint for the second and third real sets together.
 
     python benchmarks/score_candidates.py --work /tmp/sc A.epoch03.pt A.epoch06.pt soup.pt
     python benchmarks/score_candidates.py --work /tmp/sc --skip-real A.epoch03.pt   # without ../shared/real
+    python benchmarks/score_candidates.py --work /tmp/sc --second /tmp/rh --third /tmp/r3 soup.pt   # the last gate
 
-The plant and real-set figures are the ones candidates were chosen on (selection figures); the second and
-third real sets (`real_holdout/rh_fetch.sh`, `real_third/r3_fetch.sh`) are the check on things not chosen on.
+The plant and development-set figures are the ones candidates were chosen on (selection figures); the second
+and third real sets are the check on things not chosen on (the second was used to choose r58 among 13).
 """
 from __future__ import annotations
 
@@ -94,10 +99,17 @@ def plants(checkpoints: list[Path], work: Path, log: Path) -> dict[str, dict[str
     return out
 
 
-def real_set(checkpoints: list[Path], work: Path, log: Path) -> dict[str, tuple[int, int, list[str]]]:
-    """Checkpoint path → (checks passed, checks, failed checks) on the real development set."""
-    js = work / "real.json"
-    cmd = [sys.executable, "benchmarks/bench_real_set.py", "--work", str(work / "real"), "--json", str(js)]
+REAL_SETS = {"real": None, "second": ROOT / "benchmarks" / "real_holdout", "third": ROOT / "benchmarks" / "real_third"}
+
+
+def real_set(checkpoints: list[Path], work: Path, log: Path, name: str = "real",
+             orig: Path | None = None) -> dict[str, tuple[int, int, list[str]]]:
+    """Checkpoint path → (checks passed, checks, failed checks) on real set `name` (REAL_SETS; the
+    development set in ../shared/real by default), its published files in `orig` for the other two."""
+    js = work / f"{name}.json"
+    cmd = [sys.executable, "benchmarks/bench_real_set.py", "--work", str(work / name), "--json", str(js)]
+    if REAL_SETS[name] is not None:
+        cmd += ["--real", str(REAL_SETS[name]), "--orig", str(orig)]
     for c in checkpoints[1:]:  # bench_real_set.py scores the shipped checkpoint first by itself
         cmd += ["--checkpoint", str(c)]
     run(cmd, log)
@@ -114,11 +126,19 @@ def main() -> None:
     ap.add_argument("checkpoint", nargs="+", type=Path, help="candidate checkpoints (the shipped one is added first)")
     ap.add_argument("--work", type=Path, required=True, help="folder for the sets and every tool's output (reused)")
     ap.add_argument("--skip-real", action="store_true", help="leave out the real development set (../shared/real)")
+    ap.add_argument("--second", type=Path, default=None, metavar="DIR",
+                    help="also the second real set, its files as benchmarks/real_holdout/rh_fetch.sh DIR writes them")
+    ap.add_argument("--third", type=Path, default=None, metavar="DIR",
+                    help="also the third real set, its files as benchmarks/real_third/r3_fetch.sh DIR writes them")
     ap.add_argument("--json", type=Path, default=None, help="also write every figure as JSON")
     args = ap.parse_args()
     for c in args.checkpoint:
         if not c.is_file():
             raise SystemExit(f"{c}: no such checkpoint")
+    others = {name: d for name, d in (("second", args.second), ("third", args.third)) if d is not None}
+    for name, d in others.items():
+        if not d.is_dir():
+            raise SystemExit(f"--{name} {d}: no such folder (make it with the set's fetch script)")
     checkpoints = [SHIPPED] + [c.resolve() for c in args.checkpoint if c.resolve() != SHIPPED.resolve()]
     args.work.mkdir(parents=True, exist_ok=True)
     log = args.work / "log.txt"
@@ -131,19 +151,29 @@ def main() -> None:
         for c, figures in per.items():
             rows[c][name] = figures
     print(f"plant sets scored ({time.perf_counter() - t0:.0f} s)", flush=True)
-    if not args.skip_real:
-        for c, figures in real_set(checkpoints, args.work, log).items():
-            rows[c]["real"] = figures
+    real_sets = ([] if args.skip_real else ["real"]) + list(others)
+    for name in real_sets:
+        for c, figures in real_set(checkpoints, args.work, log, name, others.get(name)).items():
+            rows[c][name] = figures
+        print(f"{name} set scored ({time.perf_counter() - t0:.0f} s)", flush=True)
     print(f"\n{'checkpoint':<28}{'unlit acc / MSE':>17}{'lit acc / MSE':>17}"
-          f"{'plants16 stems soft / leaf err / MSE':>38}{'plants5 (unseen)':>22}{'real':>7}")
+          f"{'plants16 stems soft / leaf err / MSE':>38}{'plants5 (unseen)':>22}"
+          + "".join(f"{name:>8}" for name in real_sets))
     for c, r in rows.items():
         name = "shipped" if c == str(SHIPPED) else Path(c).name
         cells = [f"{r['held_out'][s][0]:.3f} / {r['held_out'][s][1]:.3f}" for s in HELD_OUT]
         cells += ["{:.2f} / {:+.2f} / {:.2f}".format(*r[s]) for s in PLANT_SETS]
-        real = f"{r['real'][0]}/{r['real'][1]}" if "real" in r else "-"
-        print(f"{name[:27]:<28}{cells[0]:>17}{cells[1]:>17}{cells[2]:>38}{cells[3]:>22}{real:>7}")
-        for failed in r.get("real", (0, 0, []))[2]:
-            print(f"{'':<30}fails {failed}")
+        real = "".join(f"{f'{r[s][0]}/{r[s][1]}':>8}" for s in real_sets)
+        print(f"{name[:27]:<28}{cells[0]:>17}{cells[1]:>17}{cells[2]:>38}{cells[3]:>22}{real}")
+        for s in real_sets:  # the shipped checkpoint's failures; for a candidate, only what differs from them
+            mine, base = set(r[s][2]), set(rows[str(SHIPPED)][s][2])
+            if c == str(SHIPPED):
+                lines = [f"fails ({s}) {f}" for f in r[s][2]]
+            else:
+                lines = [f"fails ({s}) {f}" for f in r[s][2] if f not in base] + \
+                    [f"passes ({s}) {f}" for f in rows[str(SHIPPED)][s][2] if f not in mine]
+            for line in lines:
+                print(f"{'':<30}{line}")
     print(f"({time.perf_counter() - t0:.0f} s)")
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1) + "\n")
