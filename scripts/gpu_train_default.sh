@@ -18,6 +18,7 @@ DATA=${DATA:-/tmp/pixie_data}; SEED=${SEED:-1}
 EXTRA_TRAIN_ARGS=${EXTRA_TRAIN_ARGS:-}
 LOAD_S=${LOAD_S:-90}               # time allowed for reading the dataset before training starts
 RESERVE_S=${RESERVE_S:-165}        # kept back from TOTAL_S for loading and the test evaluation
+EVAL_TIMEOUT_S=${EVAL_TIMEOUT_S:-120}  # the test evaluation's limit (inside RESERVE_S)
 export PYTHONUNBUFFERED=1 OMP_NUM_THREADS=${OMP_NUM_THREADS:-4}
 P="python3 -m pixie_gs.cli.main"
 # NPROC > 1 trains the full model data-parallel with torchrun over that many GPUs (DDP; --batch-size stays the
@@ -47,6 +48,7 @@ if [ "${REUSE_DATA:-0}" = 1 ]; then
   say "reusing the dataset in $DATA"
 else
   rm -f "$DATA/made_from.txt"  # written again only once every split is made: a run cut short leaves none
+  rm -rf "$DATA/train" "$DATA/val" "$DATA/test" "$DATA/parts"  # an earlier run's splits (merge_splits makes them anew)
 fi
 for split in train val test; do
   [ "${REUSE_DATA:-0}" = 1 ] && break

@@ -1,6 +1,7 @@
 # Steps shared by the GPU run scripts (gpu_train_default.sh, gpu_two_stage.sh); sourced, not run.
 # The caller sets OUT (output folder), LOG, START_TIME (epoch seconds at the start), P (the pixie command),
-# DEVICE and LOAD_S (seconds allowed for reading a dataset before training starts).
+# DEVICE and LOAD_S (seconds allowed for reading a dataset before training starts); EVAL_TIMEOUT_S (default
+# 180) bounds each evaluation.
 
 elapsed() { echo $(( $(date +%s) - START_TIME )); }
 say() { echo "[$(elapsed) s] $*" | tee -a "$LOG"; }
@@ -18,7 +19,7 @@ train_then_evaluate() {
   local weights=$name.pt
   [ "$eval" = last ] && weights=$(ls "$OUT" | grep -E "^$name\.epoch[0-9]+\.pt$" | sort -V | tail -1)
   [ -n "$weights" ] && [ -f "$OUT/$weights" ] || { say "evaluate $name: no weights"; return 0; }
-  timeout 180 $P evaluate "$OUT/$weights" "$data" --split test --device "$DEVICE" --workers "$eval_workers" -q \
+  timeout "${EVAL_TIMEOUT_S:-180}" $P evaluate "$OUT/$weights" "$data" --split test --device "$DEVICE" --workers "$eval_workers" -q \
     --json "$OUT/eval_$name.json" >"$OUT/eval_$name.txt" 2>&1 && say "evaluated $weights" || say "evaluate $name failed"
   cat "$OUT/eval_$name.txt" >>"$LOG"
 }
