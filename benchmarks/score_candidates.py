@@ -19,6 +19,11 @@ and about a minute more per checkpoint for the second and third real sets togeth
     python benchmarks/score_candidates.py --work /tmp/sc A.epoch03.pt A.epoch06.pt soup.pt
     python benchmarks/score_candidates.py --work /tmp/sc --skip-real A.epoch03.pt   # without ../shared/real
     python benchmarks/score_candidates.py --work /tmp/sc --second /tmp/rh --third /tmp/r3 soup.pt   # the last gate
+    python benchmarks/score_candidates.py --work /tmp/sc --soups A.epoch04.pt B.epoch09.pt   # and mean(r58, each)
+
+`--soups` also scores, after each candidate, the mean of its weights with the shipped one's (`pixie_gs.model.soup
+OUT shipped CKPT --stats-from 0`, the grid statistics of the shipped file), written into WORK as soup_NAME.pt:
+the soups stops 36–51 chose among.
 
 The plant and development-set figures are the ones candidates were chosen on (selection figures); the second
 and third real sets are the check on things not chosen on (the second was used to choose r58 among 13).
@@ -126,6 +131,8 @@ def main() -> None:
     ap.add_argument("checkpoint", nargs="+", type=Path, help="candidate checkpoints (the shipped one is added first)")
     ap.add_argument("--work", type=Path, required=True, help="folder for the sets and every tool's output (reused)")
     ap.add_argument("--skip-real", action="store_true", help="leave out the real development set (../shared/real)")
+    ap.add_argument("--soups", action="store_true",
+                    help="also score the mean of each candidate's weights with the shipped one's (WORK/soup_NAME.pt)")
     ap.add_argument("--second", type=Path, default=None, metavar="DIR",
                     help="also the second real set, its files as benchmarks/real_holdout/rh_fetch.sh DIR writes them")
     ap.add_argument("--third", type=Path, default=None, metavar="DIR",
@@ -139,9 +146,16 @@ def main() -> None:
     for name, d in others.items():
         if not d.is_dir():
             raise SystemExit(f"--{name} {d}: no such folder (make it with the set's fetch script)")
-    checkpoints = [SHIPPED] + [c.resolve() for c in args.checkpoint if c.resolve() != SHIPPED.resolve()]
+    candidates = [c.resolve() for c in args.checkpoint if c.resolve() != SHIPPED.resolve()]
     args.work.mkdir(parents=True, exist_ok=True)
     log = args.work / "log.txt"
+    checkpoints = [SHIPPED]
+    for c in candidates:
+        checkpoints.append(c)
+        if args.soups:
+            soup = args.work / f"soup_{c.stem}.pt"
+            run([sys.executable, "-m", "pixie_gs.model.soup", str(soup), str(SHIPPED), str(c), "--stats-from", "0"], log)
+            checkpoints.append(soup)
     t0 = time.perf_counter()
     make_sets(args.work, log)
     print(f"sets ready in {args.work} ({time.perf_counter() - t0:.0f} s); tools' output in {log}", flush=True)
