@@ -93,8 +93,8 @@ def summarise(rows: list[dict], top: int) -> dict:
               "share_of_excess": float(excess[i] / total) if total > 0 else 0.0} for i in order[:top]]
     accuracy = sum(r["accuracy"] * r["gaussians"] for r in rows) / n
     return {"objects": len(rows), "gaussians": n, "accuracy": accuracy, "mse": se.tolist(),
-            "mse_avg": float(se.mean()),
-            "part_mean_mse": part_mean.tolist(), "part_mean_mse_avg": float(part_mean.mean()), "floor": floor.tolist(), "floor_avg": float(floor.mean()),
+            "mse_avg": float(se.mean()), "part_mean_mse": part_mean.tolist(),
+            "part_mean_mse_avg": float(part_mean.mean()), "floor": floor.tolist(), "floor_avg": float(floor.mean()),
             "excess_avg": float(se.mean() - floor.mean()), "carried_by_worst": carried, "worst": worst}
 
 

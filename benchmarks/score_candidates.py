@@ -22,7 +22,7 @@ and about a minute more per checkpoint for the second and third real sets togeth
     python benchmarks/score_candidates.py --work /tmp/sc --soups A.epoch04.pt B.epoch09.pt   # and mean(r58, each)
 
 `--soups` also scores, after each candidate, the mean of its weights with the shipped one's (`pixie_gs.model.soup
-OUT shipped CKPT --stats-from 0`, the grid statistics of the shipped file), written into WORK as soup_NAME.pt:
+OUT shipped CKPT --stats-from 0`, the grid statistics of the shipped file), written into WORK as soupK_NAME.pt:
 the soups stops 36–51 chose among.
 
 The plant and development-set figures are the ones candidates were chosen on (selection figures); the second
@@ -52,7 +52,8 @@ def run(cmd: list[str], log: Path) -> None:
         done = subprocess.run(cmd, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT)
     if done.returncode != 0:
         tail = log.read_text().splitlines()[-5:]
-        raise SystemExit(f"{' '.join(cmd[:4])} … failed (exit {done.returncode}); last lines of {log}:\n" + "\n".join(tail))
+        raise SystemExit(f"{' '.join(cmd[:4])} … failed (exit {done.returncode}); last lines of {log}:\n"
+                         + "\n".join(tail))
 
 
 def make_sets(work: Path, log: Path) -> None:
@@ -93,7 +94,8 @@ def plants(checkpoints: list[Path], work: Path, log: Path) -> dict[str, dict[str
     for name, (folder, split) in PLANT_SETS.items():
         js = work / f"{name}.json"
         run([sys.executable, "benchmarks/bench_leafy_plants.py", "--split-dir", str(work / folder / split),
-             "--per-group", "16", "--per-plant", "--json", str(js), "--checkpoint"] + [str(c) for c in checkpoints], log)
+             "--per-group", "16", "--per-plant", "--json", str(js), "--checkpoint"] + [str(c) for c in checkpoints],
+            log)
         results = json.loads(js.read_text())["results"]
         out[name] = {}
         for c in checkpoints:
@@ -132,7 +134,7 @@ def main() -> None:
     ap.add_argument("--work", type=Path, required=True, help="folder for the sets and every tool's output (reused)")
     ap.add_argument("--skip-real", action="store_true", help="leave out the real development set (../shared/real)")
     ap.add_argument("--soups", action="store_true",
-                    help="also score the mean of each candidate's weights with the shipped one's (WORK/soup_NAME.pt)")
+                    help="also score the mean of each candidate's weights with the shipped one's (WORK/soupK_NAME.pt)")
     ap.add_argument("--second", type=Path, default=None, metavar="DIR",
                     help="also the second real set, its files as benchmarks/real_holdout/rh_fetch.sh DIR writes them")
     ap.add_argument("--third", type=Path, default=None, metavar="DIR",
@@ -150,11 +152,12 @@ def main() -> None:
     args.work.mkdir(parents=True, exist_ok=True)
     log = args.work / "log.txt"
     checkpoints = [SHIPPED]
-    for c in candidates:
+    for k, c in enumerate(candidates, 1):
         checkpoints.append(c)
-        if args.soups:
-            soup = args.work / f"soup_{c.stem}.pt"
-            run([sys.executable, "-m", "pixie_gs.model.soup", str(soup), str(SHIPPED), str(c), "--stats-from", "0"], log)
+        if args.soups:  # numbered: candidates of one name from two runs' folders get a soup each
+            soup = args.work / f"soup{k}_{c.stem}.pt"
+            run([sys.executable, "-m", "pixie_gs.model.soup", str(soup), str(SHIPPED), str(c), "--stats-from", "0"],
+                log)
             checkpoints.append(soup)
     t0 = time.perf_counter()
     make_sets(args.work, log)

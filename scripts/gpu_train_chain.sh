@@ -9,8 +9,9 @@
 # run's checkpoint, its training state, the per-epoch log and the test evaluation into $OUT (with
 # --keep-epochs also the epoch weights not sent before, in epochs_NN-MM.tar; `tar -xf` them here), so a machine
 # lost between calls costs only the time since the last copy. It also copies them every SNAP_S seconds while it
-# watches (default 60), so a call cut short at the device's limit still brings back what the run had made. The run's options are the environment of
-# gpu_train_default.sh (TOTAL_S, TRAIN_TIERS, EXTRA_TRAIN_ARGS, …), given to `start`.
+# watches (default 60), so a call cut short at the device's limit still brings back what the run had made.
+# The run's options are the environment of gpu_train_default.sh (TOTAL_S, TRAIN_TIERS, EXTRA_TRAIN_ARGS, …),
+# given to `start`.
 # usage (repo root, device call):  RUN=/root/run WATCH_S=540 OUT=$OUT scripts/gpu_train_chain.sh start
 #                                  RUN=/root/run WATCH_S=570 OUT=$OUT scripts/gpu_train_chain.sh watch
 # CPU smoke test: RUN=/tmp/r WATCH_S=120 DEVICE=cpu WORKERS=2 TOTAL_S=300 TRAIN_TIERS='26:2000' VAL_TIERS='8:2000' \
@@ -67,8 +68,11 @@ snapshot() {  # final (1: the call's last copy, which marks the epochs it sent; 
     case "$f" in train_pixie_default.json|train_logs.json|eval_pixie_default.json) ;; *) others+=("$f") ;; esac
   done
   mkdir -p "$RUN/snap"
-  if [ ${#others[@]} -gt 0 ]; then tar -cf "$RUN/snap/json.tar" -C "$RUN" "${others[@]}" && put "$RUN/snap/json.tar" json.tar
-  else rm -f "$OUT/json.tar"; fi
+  if [ ${#others[@]} -gt 0 ]; then
+    tar -cf "$RUN/snap/json.tar" -C "$RUN" "${others[@]}" && put "$RUN/snap/json.tar" json.tar
+  else
+    rm -f "$OUT/json.tar"
+  fi
   sent=$(ls "$OUT" | grep -cvE '^epochs_.*\.tar$')  # the slots the tars may not take
   local new=()
   for f in $(ls "$RUN" | grep -E '^[A-Za-z0-9_-]+\.epoch[0-9]+\.pt$' | sort -V); do  # stem, then epoch order
@@ -82,8 +86,9 @@ snapshot() {  # final (1: the call's last copy, which marks the epochs it sent; 
     done
     first=${chunk[0]#"$stem".epoch} last=${chunk[-1]#"$stem".epoch}
     name=epochs_${first%.pt}-${last%.pt}.tar; [ "$stem" = pixie_default ] || name=epochs_${stem}_${first%.pt}-${last%.pt}.tar
-    tar -cf "$RUN/snap/$name" -C "$RUN" "${chunk[@]}" && put "$RUN/snap/$name" "$name" && sent=$((sent + 1)) \
-      && tars+=("$name") && { [ "$final" = 1 ] && printf '%s\n' "${chunk[@]}" >>"$RUN/epochs_sent.txt" || true; }
+    tar -cf "$RUN/snap/$name" -C "$RUN" "${chunk[@]}" && put "$RUN/snap/$name" "$name" || continue
+    sent=$((sent + 1)); tars+=("$name")
+    [ "$final" = 1 ] && printf '%s\n' "${chunk[@]}" >>"$RUN/epochs_sent.txt"
   done
   for f in $(ls "$OUT" | grep -E '^epochs_.*\.tar$'); do  # an earlier copy's tars, now inside the new ones
     printf '%s\n' "${tars[@]}" | grep -qxF "$f" || rm -f "$OUT/$f"

@@ -19,7 +19,8 @@ train_then_evaluate() {
   local weights=$name.pt
   [ "$eval" = last ] && weights=$(ls "$OUT" | grep -E "^$name\.epoch[0-9]+\.pt$" | sort -V | tail -1)
   [ -n "$weights" ] && [ -f "$OUT/$weights" ] || { say "evaluate $name: no weights"; return 0; }
-  timeout "${EVAL_TIMEOUT_S:-180}" $P evaluate "$OUT/$weights" "$data" --split test --device "$DEVICE" --workers "$eval_workers" -q \
-    --json "$OUT/eval_$name.json" >"$OUT/eval_$name.txt" 2>&1 && say "evaluated $weights" || say "evaluate $name failed"
+  timeout "${EVAL_TIMEOUT_S:-180}" $P evaluate "$OUT/$weights" "$data" --split test --device "$DEVICE" \
+    --workers "$eval_workers" -q --json "$OUT/eval_$name.json" >"$OUT/eval_$name.txt" 2>&1 \
+    && say "evaluated $weights" || say "evaluate $name failed"
   cat "$OUT/eval_$name.txt" >>"$LOG"
 }
