@@ -5,7 +5,9 @@ import sys
 try:
     from .cli.main import main
 except KeyboardInterrupt:
-    print("pixie: interrupted", file=sys.stderr)
-    sys.exit(130)
+    import os
+
+    print("pixie: interrupted", file=sys.stderr, flush=True)
+    os._exit(130)  # not sys.exit: CPython 3.11 may end a `-m` process with SIGINT here (cli.main.exit_interrupted)
 
 sys.exit(main())

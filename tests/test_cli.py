@@ -140,6 +140,29 @@ def test_torch_is_imported_without_garbage_collections(tmp_path):
         assert probe_last_line(probe, [state], tmp_path) == want
 
 
+def test_interrupt_raised_inside_exec_of_a_string_still_exits_130(tmp_path):
+    """CPython 3.11 takes a KeyboardInterrupt raised in code that `exec` of a string runs (dataclass and
+    namedtuple creation while torch imports: where a Ctrl-C often lands) for an unhandled one even when it
+    is caught; a process started with `-m`, as `python -m pixie_gs` is, then kills itself with SIGINT at
+    exit (-2). It must still end with its one line and exit 130. The interrupt is raised in place of a
+    timed signal, so this is exact (without the fix: -2)."""
+    (tmp_path / "interrupted_probe.py").write_text(
+        "import argparse, sys\n"
+        "import pixie_gs.cli.main as cli\n"
+        "def run(args):\n"
+        "    exec('raise KeyboardInterrupt')\n"
+        "def build_parser():\n"
+        "    parser = argparse.ArgumentParser(prog='pixie')\n"
+        "    parser.add_subparsers(dest='command').add_parser('probe').set_defaults(func=run)\n"
+        "    return parser\n"
+        "cli.build_parser = build_parser\n"
+        "sys.argv = ['pixie', 'probe']\n"
+        "sys.exit(cli.main())\n")
+    res = subprocess.run([sys.executable, "-m", "interrupted_probe"], capture_output=True, text=True, cwd=tmp_path,
+                         timeout=120)
+    assert (res.returncode, res.stderr) == (130, "pixie probe: interrupted\n")
+
+
 def test_annotate_process_exits_at_once_after_flushing_and_atexit(tmp_path):
     """A single-file `pixie annotate` process ends with `os._exit` (no interpreter teardown) only after
     its output is complete, every atexit callback has run and its buffered stdout is flushed."""

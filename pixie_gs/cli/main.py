@@ -63,12 +63,13 @@ def main(argv: list[str] | None = None) -> int:
         args = parser.parse_args(fix_negative_up(list(sys.argv[1:] if argv is None else argv)))
     except KeyboardInterrupt:
         print("pixie: interrupted", file=sys.stderr)
-        return 130
+        return exit_interrupted(130, argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
     set_quiet(getattr(args, "quiet", False))
     previous = interrupts.install()
+    interrupted_code = None
     try:
         result = args.func(args)
         interrupts.raise_if_interrupted()  # one swallowed after the command's last check still ends it
@@ -78,11 +79,11 @@ def main(argv: list[str] | None = None) -> int:
     except interrupts.Terminated:
         interrupts.stop_raising()  # a second signal must not cut the report or the clean-up
         print(f"pixie {args.command}: terminated (SIGTERM); partial output removed", file=sys.stderr)
-        return 128 + signal.SIGTERM
+        interrupted_code = 128 + signal.SIGTERM
     except KeyboardInterrupt:
         interrupts.stop_raising()
         print(f"pixie {args.command}: interrupted", file=sys.stderr)
-        return 130
+        interrupted_code = 130
     except MemoryError:
         print(f"pixie {args.command}: error: out of memory (the input or the requested sizes are too large "
               "for this machine)", file=sys.stderr)
@@ -102,9 +103,24 @@ def main(argv: list[str] | None = None) -> int:
         remove_live_staging()  # a signal between two statements must not orphan a staging folder
         if argv is not None:  # a caller that goes on; the `pixie` process itself keeps them through its exit
             interrupts.restore(previous)
+    if interrupted_code is not None:  # after the clean-up above
+        return exit_interrupted(interrupted_code, argv)
     if argv is None and getattr(args, "exit_at_once", False):
         exit_at_once(int(result or 0))
     return int(result or 0)
+
+
+def exit_interrupted(code: int, argv: list[str] | None) -> int:
+    """`code` for an interrupted command; the `pixie` process itself ends here with it (`exit_at_once`).
+
+    Why: CPython 3.11 marks a KeyboardInterrupt raised inside code run by `exec` of a string (dataclass
+    and namedtuple creation while torch imports, where a Ctrl-C often lands) as unhandled even when it is
+    caught, and the normal exit of a `python -m pixie_gs` process then kills it with SIGINT: exit status
+    -2 instead of 130 (3 of 70 Ctrl-Cs during annotate's start under load; strace showed `kill(self,
+    SIGINT)` from Py_RunMain). `os._exit` skips that check."""
+    if argv is None:
+        exit_at_once(code)
+    return code
 
 
 def exit_at_once(code: int) -> None:
