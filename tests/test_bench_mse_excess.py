@@ -1,20 +1,13 @@
 """benchmarks/bench_mse_excess.py's part-averaging oracle, against sums worked out by hand."""
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 
-
-def load_bench():
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_mse_excess.py"
-    spec = importlib.util.spec_from_file_location("bench_mse_excess", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from file_modules import load_file_module
 
 
 def test_part_mean_squared_error_averages_within_each_labelled_part():
-    bench = load_bench()
+    bench = load_file_module(Path("benchmarks/bench_mse_excess.py"), "bench_mse_excess")
     # two parts of one class told apart by their labels, and a third with the first's label but another class
     target = np.array([[0.2, 0.5, 0.1], [0.2, 0.5, 0.1], [0.8, 0.3, 0.9], [0.8, 0.3, 0.9], [0.2, 0.5, 0.1]])
     true_class = np.array([0, 0, 0, 0, 1])

@@ -2,26 +2,21 @@
 answers, and the per-Gaussian confidence shown as a view in the rerun recordings pixie writes."""
 from __future__ import annotations
 
-import importlib.util
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from file_modules import load_file_module
 from pixie_gs import viz
 from pixie_gs.splat import SplatCloud
-
-ROOT = Path(__file__).resolve().parent.parent
 
 
 def _script():
     """scripts/calibration_diagram.py as a module (registered, as its dataclass needs)."""
     if "calibration_diagram" not in sys.modules:
-        spec = importlib.util.spec_from_file_location("calibration_diagram", ROOT / "scripts" / "calibration_diagram.py")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules["calibration_diagram"] = module
-        spec.loader.exec_module(module)
+        load_file_module(Path("scripts/calibration_diagram.py"), "calibration_diagram")
     return sys.modules["calibration_diagram"]
 
 

@@ -7,7 +7,6 @@ script). Materials are predicted by the shipped checkpoint, as for a user (the d
 """
 from __future__ import annotations
 
-import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -15,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from file_modules import load_file_module
 from pixie_gs.splat import read_splat
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -24,9 +24,7 @@ def run_example(name: str, out: Path, *extra: str) -> dict:
     """Import examples/NAME.py and run its main with --tiny; returns the facts it reports."""
     sys.path.insert(0, str(EXAMPLES))
     try:
-        spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
+        module = load_file_module(EXAMPLES / f"{name}.py", f"example_{name}")
         facts = module.main(["--tiny", "--quiet", "--device", "cpu", "--out", str(out), *extra])
     finally:
         sys.path.remove(str(EXAMPLES))

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from file_modules import load_file_module
 from pixie_gs.cli.main import main
 from pixie_gs.dataset.assemble import build_object
 from pixie_gs.dataset.generate import SPLITS, class_for_index, object_seed
@@ -606,12 +607,7 @@ def test_tools_lie_flat_with_steel_and_curtains_are_thin_standing_sheets():
 def test_filter_split_keeps_exactly_the_broad_leaved_trees(tmp_path: Path):
     """scripts/filter_split.py (the chain's `broadleaf` tier) keeps every object whose shape has the key and
     only those: files of the others gone, the index's count and class counts rewritten, the rest loadable."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location(
-        "filter_split", Path(__file__).resolve().parents[1] / "scripts" / "filter_split.py")
-    filter_split = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(filter_split)
+    filter_split = load_file_module(Path("scripts/filter_split.py"), "filter_split")
 
     assert main(["generate", str(tmp_path), "--count", "24", "--split", "train", "--seed", "9",
                  "--classes", "tree", *SMALL]) == 0
