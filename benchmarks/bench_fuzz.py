@@ -19,6 +19,7 @@ frames, SIGKILL left a folder mixing new frames with old tracks, ~40 tracebacks 
 
     python benchmarks/bench_fuzz.py                       # corpus + 1000 mutations + 20×3 interruptions
     python benchmarks/bench_fuzz.py --mutations 200 --trials 3   # quick look
+    python benchmarks/bench_fuzz.py --skip corpus,memory --seed 5301   # new mutations and moments
 """
 from __future__ import annotations
 
@@ -88,8 +89,8 @@ def run_corpus(work: Path, verbose: bool) -> dict:
     return {"cases": len(cases), "per_command": {k: {"cases": counts[k], **dict(rows[k])} for k in counts}}
 
 
-def run_mutations(work: Path, iterations: int, verbose: bool) -> dict:
-    rng = np.random.default_rng(2026)
+def run_mutations(work: Path, iterations: int, verbose: bool, seed: int) -> dict:
+    rng = np.random.default_rng(seed)
     base = fc.valid_ply_bytes(30, materials=True)
     folder = work / "mutations"
     folder.mkdir()
@@ -135,7 +136,7 @@ def _is_whole_new(folder: Path, frames: int, n: int) -> bool:
     return all(np.array_equal(read_splat(folder / f"frame_{i:05d}.ply").means, x[i]) for i in range(frames))
 
 
-def run_interruptions(work: Path, trials: int, seed: int = 7) -> dict:
+def run_interruptions(work: Path, trials: int, seed: int) -> dict:
     rng = np.random.default_rng(seed)
     base = work / "interrupt"
     base.mkdir()
@@ -259,6 +260,8 @@ def main() -> int:
     ap.add_argument("--mutations", type=int, default=1000)
     ap.add_argument("--trials", type=int, default=20, help="interruptions per signal")
     ap.add_argument("--skip", default="", help="comma list of parts to skip: corpus,mutations,interrupt,memory")
+    ap.add_argument("--seed", type=int, default=None,
+                    help="seed of the mutations and of the interruption moments (default: the recorded 2026 and 7)")
     ap.add_argument("--verbose", action="store_true")
     ap.add_argument("--json", default=None, help="also write the figures here")
     args = ap.parse_args()
@@ -269,9 +272,10 @@ def main() -> int:
         if "corpus" not in skip:
             figures["corpus"] = run_corpus(work, args.verbose)
         if "mutations" not in skip:
-            figures["mutations"] = run_mutations(work, args.mutations, args.verbose)
+            figures["mutations"] = run_mutations(work, args.mutations, args.verbose,
+                                                2026 if args.seed is None else args.seed)
         if "interrupt" not in skip:
-            figures["interrupt"] = run_interruptions(work, args.trials)
+            figures["interrupt"] = run_interruptions(work, args.trials, 7 if args.seed is None else args.seed)
         if "memory" not in skip:
             figures["memory"] = run_memory(work)
     finally:
