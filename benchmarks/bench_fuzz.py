@@ -3,8 +3,9 @@
 1. Corpus: every case of tests/fuzz_corpus.py (≥ 300 bad inputs over every command), run in-process
    through `pixie_gs.cli.main.main`; per command: cases, tracebacks, hangs, wrong successes,
    leftovers, modified inputs, other broken promises (wrong exit code, not exactly one error line).
-2. Mutation fuzzing: N random mutations of a valid .ply through `pixie info --json` (error in one
-   line, or a validated splat with finite covariances).
+2. Mutation fuzzing: N random mutations of a valid splat of each format (.ply, compressed .ply, .splat,
+   .spz) through `pixie info --json` (error in one line, or a validated splat with finite covariances), and
+   of a mesh of each format trimesh writes (GLB, OBJ, STL, PLY, OFF) through `pixie convert`.
 3. Interruption: T trials each of SIGINT, SIGTERM and SIGKILL sent at a random moment of
    `pixie simulate --force` over an existing output (subprocesses, as a user runs it); afterwards
    the output folder must be the old output byte for byte or the complete new one (frames that
@@ -17,7 +18,7 @@ All counts except the outcome split (old/new) must be 0. This is a correctness b
 target, so no baseline); the figures before the change are the issue's (SIGINT deleted the old
 frames, SIGKILL left a folder mixing new frames with old tracks, ~40 tracebacks in ~340 bad inputs).
 
-    python benchmarks/bench_fuzz.py                       # corpus + 1000 mutations + 20×3 interruptions
+    python benchmarks/bench_fuzz.py                       # corpus + 9×1000 mutations + 20×3 interruptions
     python benchmarks/bench_fuzz.py --mutations 200 --trials 3   # quick look
     python benchmarks/bench_fuzz.py --skip corpus,memory --seed 5301   # new mutations and moments
 """
@@ -33,6 +34,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -89,27 +91,58 @@ def run_corpus(work: Path, verbose: bool) -> dict:
     return {"cases": len(cases), "per_command": {k: {"cases": counts[k], **dict(rows[k])} for k in counts}}
 
 
+def fuzz_each_format(suffixes: tuple[str, ...], base_of: Callable[[str], bytes],
+                     mutate: Callable[[bytes, str, np.random.Generator], bytes],
+                     check_once: Callable[[bytes, str], "fc.Outcome"], rng_of: Callable[[int, str], np.random.Generator],
+                     what: str, iterations: int, verbose: bool) -> dict:
+    """`iterations` files of each format, each its valid base mutated 1–3 times, through `check_once`;
+    per format the outcome split and the broken promises (all must be 0)."""
+    figures = {}
+    for k, suffix in enumerate(suffixes):
+        rng, base = rng_of(k, suffix), base_of(suffix)
+        tally = collections.Counter()
+        outcomes = collections.Counter()
+        t0 = time.perf_counter()
+        for _ in range(iterations):
+            blob = base
+            for _ in range(int(rng.integers(1, 4))):
+                blob = mutate(blob, suffix, rng)
+            outcome = check_once(blob, suffix)
+            tally.update(categorise(outcome.problems))
+            outcomes["accepted (valid splat)" if outcome.code == 0 else "refused in one line"] += 1
+            if outcome.problems and verbose:
+                print(f"  mutation of .{suffix}: {outcome.problems}", flush=True)
+        print(f"\nmutation fuzzing of {what.format(suffix=suffix)}: {iterations} iterations in "
+              f"{time.perf_counter() - t0:.0f} s; " + ", ".join(f"{k} {v}" for k, v in outcomes.items()))
+        print("  " + ", ".join(f"{c} {tally[c]}" for c in CATEGORIES))
+        figures[suffix] = {"iterations": iterations, **dict(outcomes), **{c: tally[c] for c in CATEGORIES}}
+    return figures
+
+
 def run_mutations(work: Path, iterations: int, verbose: bool, seed: int) -> dict:
-    rng = np.random.default_rng(seed)
-    base = fc.valid_ply_bytes(30, materials=True)
+    """Each splat format through `pixie info --json`. The .ply rows keep the recorded sequence (a 30-Gaussian
+    table with materials, rng `seed`); each other format draws from its own stream (`[seed, k]`) over a
+    300-Gaussian file written by pixie's writer."""
     folder = work / "mutations"
     folder.mkdir()
-    tally = collections.Counter()
-    outcomes = collections.Counter()
-    t0 = time.perf_counter()
-    for _ in range(iterations):
-        blob = base
-        for _ in range(int(rng.integers(1, 4))):
-            blob = fc.mutate(blob, rng)
-        outcome = fc.fuzz_info_once(blob, folder)
-        tally.update(categorise(outcome.problems))
-        outcomes["read ok (valid splat)" if outcome.code == 0 else "refused in one line"] += 1
-        if outcome.problems and verbose:
-            print(f"  mutation: {outcome.problems}", flush=True)
-    print(f"\nmutation fuzzing of a valid .ply through `pixie info --json`: {iterations} iterations in "
-          f"{time.perf_counter() - t0:.0f} s; " + ", ".join(f"{k} {v}" for k, v in outcomes.items()))
-    print("  " + ", ".join(f"{c} {tally[c]}" for c in CATEGORIES))
-    return {"iterations": iterations, **dict(outcomes), **{c: tally[c] for c in CATEGORIES}}
+    return fuzz_each_format(
+        fc.SPLAT_SUFFIXES,
+        lambda suffix: fc.valid_ply_bytes(30, materials=True) if suffix == "ply" else fc.valid_splat_bytes(suffix),
+        fc.mutate_splat, lambda blob, suffix: fc.fuzz_info_once(blob, folder, name=f"m.{suffix}"),
+        lambda k, suffix: np.random.default_rng(seed if suffix == "ply" else [seed, k]),
+        "a valid .{suffix} through `pixie info --json`", iterations, verbose)
+
+
+def run_mesh_mutations(work: Path, iterations: int, verbose: bool, seed: int) -> dict:
+    """Each mesh format trimesh writes (GLB, OBJ, STL, PLY, OFF) through `pixie convert`: an error in one
+    line, or a valid 200-Gaussian splat."""
+    folder = work / "mesh_mutations"
+    folder.mkdir()
+    return fuzz_each_format(
+        fc.MESH_SUFFIXES_FUZZED, fc.valid_mesh_bytes, fc.mutate_mesh,
+        lambda blob, suffix: fc.fuzz_convert_once(blob, suffix, folder),
+        lambda k, suffix: np.random.default_rng([seed, 100 + k]),
+        "a trimesh-written .{suffix} mesh through `pixie convert`", iterations, verbose)
 
 
 # ------------------------------------------------------------------------- interruptions
@@ -259,7 +292,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mutations", type=int, default=1000)
     ap.add_argument("--trials", type=int, default=20, help="interruptions per signal")
-    ap.add_argument("--skip", default="", help="comma list of parts to skip: corpus,mutations,interrupt,memory")
+    ap.add_argument("--skip", default="", help="comma list of parts to skip: corpus,mutations,meshes,interrupt,memory")
     ap.add_argument("--seed", type=int, default=None,
                     help="seed of the mutations and of the interruption moments (default: the recorded 2026 and 7)")
     ap.add_argument("--verbose", action="store_true")
@@ -274,6 +307,9 @@ def main() -> int:
         if "mutations" not in skip:
             figures["mutations"] = run_mutations(work, args.mutations, args.verbose,
                                                 2026 if args.seed is None else args.seed)
+        if "meshes" not in skip:
+            figures["meshes"] = run_mesh_mutations(work, args.mutations, args.verbose,
+                                                   2026 if args.seed is None else args.seed)
         if "interrupt" not in skip:
             figures["interrupt"] = run_interruptions(work, args.trials, 7 if args.seed is None else args.seed)
         if "memory" not in skip:

@@ -46,6 +46,7 @@ def load_mesh(path: str | Path) -> "trimesh.Trimesh":  # noqa: F821 (trimesh imp
         if isinstance(exc, ImportError):  # trimesh reaches for an optional text-encoding detector on garbage
             text = f"contents are not a readable {path.suffix.lower()} file (binary garbage or an unknown text encoding)"
         raise InputError(f"cannot read mesh ({text[:200]})", path) from None
+    _refuse_malformed_geometry(loaded, path)
     meshes = _triangle_meshes(loaded)
     if not meshes:
         raise InputError("has no triangle faces (a point cloud or empty file? convert needs a mesh)", path)
@@ -95,6 +96,26 @@ def _refuse_undecodable_gltf(path: Path) -> None:
         raise InputError(f"its geometry is compressed with {', '.join(compressed)}, which pixie cannot decode: "
                          "export it again without mesh compression (e.g. Blender's glTF export with "
                          "'Compression' off)", path)
+
+
+def _refuse_malformed_geometry(loaded, path: Path) -> None:
+    """InputError when a mesh's vertices are not 3-D points or a triangle names a vertex the mesh does not
+    have (a damaged file): trimesh loads such files and fails later, with an IndexError or an AxisError, when
+    it first looks the corners up."""
+    import trimesh
+
+    geometries = loaded.geometry.values() if isinstance(loaded, trimesh.Scene) else [loaded]
+    for geometry in geometries:
+        if not isinstance(geometry, trimesh.Trimesh) or not len(geometry.faces):
+            continue
+        vertices, faces = np.asarray(geometry.vertices), np.asarray(geometry.faces)
+        if vertices.ndim != 2 or vertices.shape[1] != 3:
+            raise InputError(f"vertex positions have shape {vertices.shape}, not (N, 3)", path)
+        bad = (faces < 0) | (faces >= len(vertices))
+        if bad.any():
+            row = int(np.argmax(bad.any(axis=1)))
+            raise InputError(f"triangle {row} refers to vertex {int(faces[row][bad[row]][0])}, but the mesh has "
+                             f"{len(vertices)} vertices (a damaged index buffer)", path)
 
 
 def _triangle_meshes(loaded) -> list:

@@ -9,11 +9,14 @@ input byte-identical afterwards. Bad files are written with plyfile/json/numpy/t
 from __future__ import annotations
 
 import contextlib
+import gzip
 import hashlib
 import io
 import json
 import os
 import signal
+import tempfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -601,19 +604,115 @@ def run_case(case: Case, folder: Path, timeout_s: float = 120.0) -> Outcome:
 
 
 # ------------------------------------------------------------------------- mutation fuzzing
+SPECIAL_FLOAT32 = np.array([np.nan, np.inf, -np.inf, 1e38, 1e-42, -0.0, 3e30], np.float32)
+SPLAT_SUFFIXES = ("ply", "compressed.ply", "splat", "spz")  # every format `read_splat` detects
+
+
+def valid_splat_bytes(suffix: str, n: int = 300, seed: int = 0) -> bytes:
+    """A valid splat in the format of `suffix` (one of SPLAT_SUFFIXES): the plyfile-made table of
+    `valid_ply_bytes`, written for the other formats by pixie's own writers (the readers are what is fuzzed)."""
+    if suffix == "ply":
+        return valid_ply_bytes(n, seed=seed)
+    from pixie_gs.formats import write_any
+    from pixie_gs.splat import read_splat
+
+    with tempfile.TemporaryDirectory() as tmp:
+        source, target = Path(tmp) / "v.ply", Path(tmp) / f"v.{suffix}"
+        source.write_bytes(valid_ply_bytes(n, seed=seed))
+        write_any(read_splat(source), target)
+        return target.read_bytes()
+
+
+def _flip(b: bytearray, rng: np.random.Generator) -> bytearray:
+    """A few bytes anywhere set to random values."""
+    for _ in range(int(rng.integers(1, 8))):
+        b[int(rng.integers(0, len(b)))] = int(rng.integers(0, 256))
+    return b
+
+
+def _insert(b: bytearray, rng: np.random.Generator) -> bytearray:
+    """1–63 random bytes inserted at a random place."""
+    at = int(rng.integers(0, len(b)))
+    b[at:at] = rng.bytes(int(rng.integers(1, 64)))
+    return b
+
+
+def mutate_bytes(data: bytes, rng: np.random.Generator) -> bytes:
+    """One format-blind mutation: byte flips, truncation, insertion, or a special float32 (NaN, ±inf, huge,
+    subnormal) over 4 aligned bytes. For the headerless formats (.splat records, the inflated .spz stream)."""
+    b = bytearray(data)
+    kind = int(rng.integers(0, 4))
+    if kind == 0 and b:
+        b = _flip(b, rng)
+    elif kind == 1:
+        b = b[:int(rng.integers(0, len(b) + 1))]
+    elif kind == 2 and b:
+        b = _insert(b, rng)
+    elif len(b) >= 4:
+        at = 4 * int(rng.integers(0, len(b) // 4))
+        b[at:at + 4] = SPECIAL_FLOAT32[int(rng.integers(0, len(SPECIAL_FLOAT32)))].tobytes()
+    return bytes(b)
+
+
+def mutate_splat(data: bytes, suffix: str, rng: np.random.Generator) -> bytes:
+    """One mutation of a splat file of the format `suffix`: header-aware for the PLY formats; for .spz
+    mostly of the inflated stream, deflated again so the reader gets past gzip (else of the gzip bytes)."""
+    if suffix in ("ply", "compressed.ply"):
+        return mutate(data, rng)
+    if suffix == "spz" and rng.random() < 0.85:
+        try:
+            return gzip.compress(mutate_bytes(gzip.decompress(data), rng))
+        except (OSError, EOFError, zlib.error):  # an earlier mutation broke the gzip stream itself
+            pass
+    return mutate_bytes(data, rng)
+
+
+MESH_SUFFIXES_FUZZED = ("glb", "obj", "stl", "ply", "off")
+TEXT_TOKENS = [b"nan", b"inf", b"-inf", b"1e308", b"-1", b"0", b"99999999", b"-99999", b"1.5", b"", b"x", b"1/2/3",
+               b"0/0"]
+
+
+def valid_mesh_bytes(suffix: str, seed: int = 0) -> bytes:
+    """An icosphere (162 vertices) with random vertex colours, as trimesh (not pixie) writes it as `suffix`."""
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.1)
+    rgba = np.random.default_rng(seed).integers(0, 256, (len(sphere.vertices), 4))
+    sphere.visual.vertex_colors = rgba.astype(np.uint8)
+    data = sphere.export(file_type=suffix)
+    return data.encode() if isinstance(data, str) else data
+
+
+def mutate_mesh(data: bytes, suffix: str, rng: np.random.Generator) -> bytes:
+    """One mutation of a mesh file: for OBJ/OFF mostly of one text line (a field replaced by a special token,
+    the line deleted or repeated), header-aware for PLY, format-blind for GLB and STL."""
+    if suffix in ("obj", "off") and rng.random() < 0.8:
+        lines = data.split(b"\n")
+        j = int(rng.integers(0, len(lines)))
+        fields = lines[j].split(b" ")
+        r = rng.random()
+        if r < 0.6 and len(fields) > 1:
+            fields[int(rng.integers(1, len(fields)))] = TEXT_TOKENS[int(rng.integers(0, len(TEXT_TOKENS)))]
+            lines[j] = b" ".join(fields)
+        elif r < 0.8:
+            del lines[j]
+        else:
+            lines.insert(j, lines[int(rng.integers(0, len(lines)))])
+        return b"\n".join(lines)
+    return mutate(data, rng) if suffix == "ply" else mutate_bytes(data, rng)
+
+
 def mutate(data: bytes, rng: np.random.Generator) -> bytes:
-    """One random mutation of a file: byte flips, truncation, insertion, header-number edits, splices."""
+    """One random mutation of a PLY file: byte flips, truncation, insertion, header-number edits, splices."""
     b = bytearray(data)
     kind = int(rng.integers(0, 7))
     header_end = data.find(b"end_header\n")
     if kind == 0 and b:  # flip a few bytes anywhere
-        for _ in range(int(rng.integers(1, 8))):
-            b[int(rng.integers(0, len(b)))] = int(rng.integers(0, 256))
+        b = _flip(b, rng)
     elif kind == 1:  # truncate
         b = b[:int(rng.integers(0, len(b) + 1))]
     elif kind == 2 and b:  # insert junk
-        at = int(rng.integers(0, len(b)))
-        b[at:at] = rng.bytes(int(rng.integers(1, 64)))
+        b = _insert(b, rng)
     elif kind == 3 and header_end > 0:  # change a number in the header
         head = data[:header_end].decode("ascii", "replace")
         nums = [tok for tok in head.split() if tok.isdigit()]
@@ -627,7 +726,7 @@ def mutate(data: bytes, rng: np.random.Generator) -> bytes:
             else None
         if body is not None and len(body):
             idx = rng.integers(0, len(body), int(rng.integers(1, 5)))
-            body[idx] = rng.choice(np.array([np.nan, np.inf, -np.inf, 1e38, 1e-42, -0.0, 3e30], np.float32), len(idx))
+            body[idx] = rng.choice(SPECIAL_FLOAT32, len(idx))
             b = bytearray(bytes(b[:header_end + 11]) + body.tobytes())
     elif kind == 5 and header_end > 0:  # swap/duplicate a header line
         lines = data[:header_end].split(b"\n")
@@ -642,6 +741,32 @@ def mutate(data: bytes, rng: np.random.Generator) -> bytes:
                                                                   b"property int", b"property list uchar float"]),
                                    1 + int(rng.integers(0, 3))))
     return bytes(b)
+
+
+def fuzz_convert_once(data: bytes, suffix: str, folder: Path) -> Outcome:
+    """`pixie convert` of one mutated mesh to a 200-Gaussian splat: an error (one line) or a valid splat written,
+    and nothing else."""
+    mesh, out = folder / f"m.{suffix}", folder / "out.ply"
+
+    def make(f: Path) -> list[str]:
+        mesh.write_bytes(data)
+        return ["convert", str(mesh), str(out), "--count", "200", "-q"]
+
+    outcome = run_case(Case("convert", "mesh mutation", make), folder, timeout_s=30)
+    if outcome.code == 0 and outcome.problems == ["wrong success", "leftovers: ['out.ply']"]:
+        from pixie_gs.splat import read_splat
+
+        outcome.problems = []
+        try:
+            cloud = read_splat(out)
+            cloud.validate()
+            if len(cloud) != 200 or not np.isfinite(cloud.covariances()).all():
+                outcome.problems.append("wrong success: the splat written is not 200 finite Gaussians")
+        except Exception as exc:  # noqa: BLE001
+            outcome.problems.append(f"wrong success: convert ok but its output does not read ({type(exc).__name__})")
+    mesh.unlink(missing_ok=True)
+    out.unlink(missing_ok=True)
+    return outcome
 
 
 def fuzz_info_once(data: bytes, folder: Path, name: str = "m.ply") -> Outcome:

@@ -238,13 +238,28 @@ def test_same_seed_gives_identical_bytes(tmp_path, capsys):
     assert outs[0].read_bytes() != outs[2].read_bytes()
 
 
+def glb_with_index_out_of_range() -> bytes:
+    """trimesh's GLB of an icosphere (42 vertices) with its first triangle's first index set to 714."""
+    sphere = trimesh.creation.icosphere(subdivisions=1, radius=0.1)
+    glb = sphere.export(file_type="glb")
+    at = glb.find(np.asarray(sphere.faces).astype("<u4").tobytes())
+    assert at > 0
+    return glb[:at] + np.uint32(714).tobytes() + glb[at + 4:]
+
+
 @pytest.mark.parametrize("name, content, message", [
     ("broken.glb", b"glTF\x02\x00\x00\x00garbage-not-a-real-binary-gltf", "cannot read mesh"),
+    # found by mutation fuzzing (docs/benchmarks.md, stop 53): trimesh reads these, then fails on first use
+    ("index.glb", glb_with_index_out_of_range(), "triangle 0 refers to vertex 714, but the mesh has 42 vertices"),
+    ("index.ply", b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                  b"element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n",
+     "triangle 0 refers to vertex 7, but the mesh has 3 vertices"),
+    ("flat.obj", b"v 0 0 0\nv 1 0\nv 0 1 0\nf 1 2 3\n", "vertex positions have shape (3, 2), not (N, 3)"),
     ("points.ply", b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
                    b"property float z\nend_header\n0 0 0\n1 1 1\n", "no triangle faces"),
     ("model.xyz", b"0 0 0\n", "unsupported mesh type"),
     ("missing.obj", None, "no such file"),
-])
+], ids=lambda v: v if isinstance(v, str) and "." in v and " " not in v else "")
 def test_bad_mesh_file_gives_one_line_error_and_no_output(tmp_path, capsys, name, content, message):
     path, out = tmp_path / name, tmp_path / "out.ply"
     if content is not None:

@@ -199,6 +199,22 @@ def test_list_property_on_vertex_is_a_one_line_error(tmp_path: Path) -> None:
     assert len(lines) == 1 and "list property 'ids'" in lines[0]
 
 
+def test_element_named_twice_is_a_one_line_error(tmp_path: Path) -> None:
+    """The real slice with a second, empty 'element vertex' line at the end of its header: the data size still
+    matches the header, so only the header check can tell. Before the check this file read as valid, and the
+    mutation fuzzing of compressed PLYs found a file with the line in another place that ended in a traceback."""
+    raw = GUITAR.read_bytes()
+    end = raw.index(b"end_header\n")
+    head = raw[:end] + b"element vertex 768\n"
+    assert head.count(b"element vertex 768") == 2
+    path = tmp_path / "twice.compressed.ply"
+    path.write_bytes(head + raw[end:])
+    proc = subprocess.run([sys.executable, "-m", "pixie_gs", "info", str(path)], capture_output=True, text=True)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr and len(lines) == 1
+    assert "element 'vertex' appears twice" in lines[0] and str(path) in lines[0]
+
+
 # ------------------------------------------------------------------ detection by content
 def test_detection_ignores_extensions(tmp_path: Path) -> None:
     cloud = random_cloud(300)

@@ -106,6 +106,9 @@ def parse_header(head: bytes, path: str | Path | None = None) -> PlyHeader:
         elif key == "element":
             if len(words) != 3 or not words[2].isdigit():
                 raise InputError(f"malformed PLY header (line {lineno}: {line.strip()!r})", path)
+            if any(el.name == words[1] for el in elements):  # a reader would see only one of the two
+                raise InputError(f"malformed PLY header (line {lineno}: element {words[1][:40]!r} appears twice)",
+                                 path)
             elements.append(PlyElementHeader(words[1], int(words[2])))
         elif key == "property":
             if not elements:
