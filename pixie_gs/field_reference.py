@@ -71,7 +71,9 @@ def splat_field_reference(means, covariances, alphas, features, resolution: int 
                 maha = coef[g] @ basis  # (G,K)
                 gi, ki = torch.nonzero(maha <= cut2, as_tuple=True)
                 gg = g[gi]
-                w = torch.exp(-0.5 * maha[gi, ki])
+                # maha < 0 only where rounding left Σ not positive definite (a needle ~1e4× longer than
+                # wide): weight α there, as at a centre, never α·exp(+…) (stop 53: 1e25 densities, NaN)
+                w = torch.exp(-0.5 * maha[gi, ki].clamp_min(0.0))
                 acc.index_add_(0, base_flat[gg] + off_flat[ki], w[:, None] * weighted[gg])
     acc = acc.view(batch_size, np_, np_, np_, f + 1)[:, pad:pad + n, pad:pad + n, pad:pad + n]
     acc = acc.reshape(batch_size, n ** 3, f + 1)

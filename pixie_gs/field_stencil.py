@@ -16,7 +16,9 @@ voxel centres inside its `cutoff_sigma` ellipsoid, a ball stencil truncating onl
   candidates around the whole voxel: ~11 groups like the reference, since there kernel launches cost
   more than candidates).
 
-The result differs from the reference only by float32 summation order (~1e-6 relative), except that a
+Both clamp the Mahalanobis term at 0, so no Gaussian adds more than its α at any voxel even where float32
+rounding left an extreme needle's covariance not positive definite. The result differs from the reference
+only by float32 summation order (~1e-6 relative), except that a
 voxel centre lying within rounding of the cutoff ellipsoid's surface may be in on one path and out on
 the other (a difference of at most α·exp(-½·cutoff²) ≈ 0.011·α at that voxel; rare).
 """
@@ -199,7 +201,7 @@ def _cpu_sums(means, cov, alphas, feats, n, filter_voxels, cutoff_sigma, max_rad
         if last == first:
             return
         w = w_buf[:held]
-        torch.from_numpy(w).mul_(-0.5).exp_()  # in place: maha → exp(-½ maha)
+        torch.from_numpy(w).clamp_(min=0.0).mul_(-0.5).exp_()  # in place: maha → exp(-½ max(maha, 0)), as the reference
         ptr = np.zeros(last - first + 1, index_t if held < 2 ** 31 else np.int64)
         np.cumsum(counts[first:last], out=ptr[1:])
         mat = sp.csc_matrix((w, v_buf[:held].astype(ptr.dtype, copy=False), ptr), shape=(rows, last - first))
@@ -258,7 +260,7 @@ def _torch_sums(means, covariances, alphas, features, n, filter_voxels, cutoff_s
             maha = coef[g] @ basis
             gi, ki = torch.nonzero(maha <= cut2, as_tuple=True)
             gg = g[gi]
-            w = torch.exp(-0.5 * maha[gi, ki])
+            w = torch.exp(-0.5 * maha[gi, ki].clamp_min(0.0))  # as the reference: never above α
             add_rows_in_order(acc, base_flat[gg] + off_flat[ki], w[:, None] * weighted[gg])
         start += cnt
     return acc

@@ -88,6 +88,29 @@ def test_a_nan_gaussian_adds_nothing(backend):
     _assert_same_field(got, splat_field(means[keep], cov[keep], alphas[keep], feats[keep], 32))
 
 
+@pytest.mark.parametrize("path", ["numpy", "torch", "reference"])
+def test_a_needle_whose_float32_covariance_is_not_positive_definite_adds_at_most_its_alpha(path):
+    """A needle ~300 grid sides long and 1/50 of one wide (σ ratio 1.6e4; a mutated .spz had one and annotate
+    ended in NaN): in float32 its covariance has a negative eigenvalue larger than the 0.5-voxel filter, so the
+    quadratic form goes negative and exp(-½ maha) reached 1e25. Every path must keep each Gaussian's weight
+    at a voxel within its α, so the density never exceeds the sum of the opacities."""
+    means, cov, alphas, feats = _random_gaussians(50, 11)
+    rot = quat_to_rotmat(np.array([[0.13, -0.13, 0.64, 0.1]]))[0]  # one whose float32 rounding is not PD
+    needle = (rot @ np.diag(np.array([300.0, 0.02, 0.02]) ** 2) @ rot.T).astype(np.float32)
+    n = 32
+    assert np.linalg.eigvalsh(needle.astype(np.float64) + (0.5 / n) ** 2 * np.eye(3)).min() < 0
+    cov = torch.cat([cov, torch.as_tensor(needle)[None]])
+    means = torch.cat([means, torch.tensor([[0.5, 0.5, 0.5]])])
+    alphas = torch.cat([alphas, torch.tensor([0.8])])
+    feats = torch.cat([feats, torch.ones(1, feats.shape[1])])
+    if path == "reference":
+        dens, sums = splat_field_reference(means, cov, alphas, feats, n)
+    else:
+        dens, sums = stencil_field(means, cov, alphas, feats, n, backend=None if path == "numpy" else "torch")
+    assert torch.isfinite(dens).all() and torch.isfinite(sums).all()
+    assert float(dens.max()) <= float(alphas.sum()) * (1 + 1e-6)
+
+
 def test_fast_field_batches_like_separate_grids():
     """batch_index puts Gaussians into their own grid: the same as the reference and as one grid each."""
     args = _random_gaussians(2400, 8)

@@ -113,6 +113,18 @@ def test_valid_cloud_with_extreme_but_sane_values_passes(tmp_path):
     assert len(read_splat(write_ply(tmp_path / "ok.ply", t))) == N
 
 
+def test_a_valid_splat_with_one_extreme_needle_annotates_to_finite_materials(tmp_path, capsys):
+    """One Gaussian σ = (330 m, 18 mm, 18 mm) in a 1 m object (valid: |log σ| ≤ 40): its float32 covariance,
+    turned to the found up, is not positive definite, and annotate ended with "E is not finite" (exit 3) on a
+    mutated .spz found by fuzzing (stop 53). The field now keeps each Gaussian's weight within its α."""
+    t = vertex_table(300, materials=False, extras=False)
+    t["scale_0"][0], t["scale_1"][0], t["scale_2"][0] = 5.8, -4.0, -4.0
+    src, out = write_ply(tmp_path / "needle.ply", t), tmp_path / "out.ply"
+    code, err = run_cli(["annotate", str(src), str(out), "--device", "cpu", "-q"], capsys)
+    assert code == 0, err
+    assert all(np.isfinite(a).all() for a in read_splat(out).get_materials())
+
+
 # ------------------------------------------------------------------------- checkpoints
 def _payload():
     import torch
