@@ -94,6 +94,21 @@ def test_device_guard_stays_quiet_on_a_healthy_state_and_counts_per_material(dev
     assert stats.bad == 7 and stats.bad_per_material[METAL] == 7
 
 
+def test_a_nan_particle_ends_the_frame_with_the_guard_not_outside_the_grid(device):
+    """A particle whose position turned NaN mid-run (a solver fault; stop 53 had one from the rigid solve)
+    must not make P2G/G2P index outside the grid arrays (a segfault on a CPU): the stencil base is clamped
+    into the grid and the frame's divergence guard reports it as a ComputationError (exit 3)."""
+    from pixie_gs.errors import ComputationError
+
+    scene = scene_for_tests()
+    sim = MPMSolver(mixed_block(scene), scene, device)
+    x = sim.x.numpy()
+    x[5] = np.nan  # one slot of the device state
+    sim.x.assign(x)
+    with pytest.raises(ComputationError, match="diverged"):
+        sim.step_frame(1.0 / 240)
+
+
 def test_particle_arrays_are_kept_in_cell_order_and_results_in_file_order(device):
     scene = scene_for_tests()
     p = mixed_block(scene)

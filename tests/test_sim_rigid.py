@@ -350,3 +350,37 @@ def test_tilted_slab_landing_on_an_edge_of_many_points_does_not_blow_up(device):
     assert np.isfinite(x).all() and x[:, 2].min() >= -1e-6 and x[:, 2].min() < scene.dx
     np.testing.assert_allclose(pair_distances(x), pair_distances(p.x), atol=1e-4)  # rigid
     assert np.abs(sim.velocities()).max() < 2.4  # slower than it landed: no energy from the contact
+
+
+def test_one_particle_body_touching_nearly_empty_nodes_keeps_a_finite_motion(device):
+    """A rigid body of one particle (no inertia of its own, 6.1 g) covering nodes that hold 5.8e-11 kg of soft
+    material: the common-motion solve's matrix has a trace of ~6e-14 kg m² and its float32 inverse came out
+    NaN, so ω, v and then the particle's position became NaN and the next P2G indexed outside the grid (a
+    segfault; stop 53, a fuzzed splat; the sums below are the ones that substep had). The solve must give a
+    finite motion close to the body's free fall (the nodes weigh 1e-8 of it)."""
+    import warp as wp
+
+    from pixie_gs.sim.rigid import RigidBodies, rigid_solve
+
+    v0 = np.array([2.2485315e-06, 1.5796262e-06, -0.44536638])
+    bodies = RigidBodies(np.array([0]), np.array([[0.0, 0.0, 0.5]]), v0[None], np.array([6.107022e-3]), (4, 4, 4),
+                         (0.0, 0.0, -9.81), 0.0, device)
+    bodies.omega.assign(np.array([[1.3598376e-04, -5.6772198e-05, 6.2892796e-06]], np.float32))
+    sums = {"node_mass": 5.7517352e-11, "node_moment": [8.5209764e-13, 4.3792259e-13, -7.5572795e-13],
+            "node_momentum": [2.5866181e-16, 2.4705172e-16, -2.5630244e-11],
+            "node_ang": [-1.9513921e-13, 3.7969958e-13, 1.7394351e-18],
+            "node_inertia": [[1.5024428e-14, -6.4876566e-15, 1.1195821e-14],
+                             [-6.4876566e-15, 2.7602015e-14, 5.7539215e-15],
+                             [1.1195821e-14, 5.7539215e-15, 2.2767233e-14]]}
+    for name, value in sums.items():
+        getattr(bodies, name).assign(np.asarray(value, np.float32)[None])
+    dt = 3.28e-6
+    wp.launch(rigid_solve, dim=1, device=device,
+              inputs=[bodies.body_mass, bodies.inertia0_wp, bodies.inertia_inv0, bodies.kick, bodies.kick_ang,
+                      bodies.node_mass, bodies.node_moment, bodies.node_momentum, bodies.node_ang,
+                      bodies.node_inertia, bodies.lo, bodies.hi, bodies.com, bodies.pivot, bodies.rot, bodies.vel,
+                      bodies.omega, bodies.contacts, bodies.gravity, 0.0, wp.vec3(-9.0, -9.0, -9.0),
+                      wp.vec3(9.0, 9.0, 9.0), 0.5, dt])
+    state = bodies.state()
+    assert all(np.isfinite(state[k]).all() for k in ("com", "quat", "v", "omega"))
+    assert state["v"][0] == pytest.approx(v0 + [0.0, 0.0, -9.81 * dt], abs=1e-5)

@@ -30,9 +30,12 @@ def bspline_weights(fx: float) -> wp.vec3:
 @wp.func
 def stencil_of(xp: wp.vec3, grid: GridInfo):
     """Lowest node (base) of the 3×3×3 stencil around world position `xp` and the position
-    relative to it in cells (fx ∈ [0.5, 1.5)³), shared by P2G and G2P."""
+    relative to it in cells (fx ∈ [0.5, 1.5)³), shared by P2G and G2P. The base is clamped into the grid:
+    the walls keep every finite particle inside, and a NaN one (a solver fault the frame's divergence guard
+    then reports) must not index outside the arrays (a segfault on a CPU, stop 53)."""
     xg = (xp - grid.origin) * grid.inv_dx
-    base = wp.vec3i(int(xg[0] - 0.5), int(xg[1] - 0.5), int(xg[2] - 0.5))
+    base = wp.vec3i(wp.clamp(int(xg[0] - 0.5), 0, grid.dims[0] - 3), wp.clamp(int(xg[1] - 0.5), 0, grid.dims[1] - 3),
+                    wp.clamp(int(xg[2] - 0.5), 0, grid.dims[2] - 3))
     return base, xg - wp.vec3(float(base[0]), float(base[1]), float(base[2]))
 
 

@@ -353,8 +353,14 @@ def rigid_solve(body_mass: wp.array(dtype=float), inertia0: wp.array(dtype=wp.ma
         P = M * v + node_momentum[b]
         L = Ib * w + node_ang[b]
         A = Ib + node_inertia[b] + wp.skew(S) * wp.skew(S) / Mt  # inertia of both about their common COM
-        reg = 1.0e-7 * (A[0, 0] + A[1, 1] + A[2, 2]) + 1.0e-30
-        w = wp.inverse(A + reg * eye) * (L - wp.cross(S, P) / Mt)
+        # solved as (A/tr + 1e-7 I) w = rhs/tr: the same regularised solve, but a one-particle body
+        # touching nodes that hold ~1e-11 kg has tr(A) ~ 1e-24 kg m², whose float32 determinant
+        # (~tr³) underflows to 0 and made ω NaN (stop 53; then a NaN position indexed outside the grid)
+        tr = A[0, 0] + A[1, 1] + A[2, 2]
+        if tr > 0.0:
+            w = wp.inverse(A / tr + 1.0e-7 * eye) * ((L - wp.cross(S, P) / Mt) / tr)
+        else:  # no extent about the common COM: nothing to turn
+            w = wp.vec3(0.0)
         v = (P - wp.cross(w, S)) / Mt
     dvn = float(0.0)
     if contacts[b] > 0.0:  # the floor pushed it up by this much: Coulomb friction below

@@ -590,6 +590,8 @@ class MPMSolver:
         x = self.x.numpy()  # bounds column by column: an axis-0 reduction of (N,3) is ~15× slower
         g_lo = (np.array([x[:, i].min() for i in range(3)], np.float64) - self.origin) / self.dx
         g_hi = (np.array([x[:, i].max() for i in range(3)], np.float64) - self.origin) / self.dx
+        if not (np.isfinite(g_lo).all() and np.isfinite(g_hi).all()):  # a NaN particle: the frame's guard reports it
+            return (0, 0, 0), self.dims
         lo = np.maximum(np.floor(g_lo - 0.5).astype(int), 0)
         hi = np.minimum(np.floor(g_hi - 0.5).astype(int) + 3, self.dims)
         return tuple(int(a) for a in lo), tuple(int(b - a) for a, b in zip(lo, hi))  # type: ignore[return-value]
