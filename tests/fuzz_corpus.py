@@ -14,6 +14,7 @@ import hashlib
 import io
 import json
 import os
+import shutil
 import signal
 import tempfile
 import zlib
@@ -767,6 +768,35 @@ def fuzz_convert_once(data: bytes, suffix: str, folder: Path) -> Outcome:
     mesh.unlink(missing_ok=True)
     out.unlink(missing_ok=True)
     return outcome
+
+
+def annotate_and_simulate_once(data: bytes, suffix: str, folder: Path, frames: int = 3) -> tuple[Outcome, Outcome | None]:
+    """A splat that reads as valid through `pixie annotate` then `pixie simulate` (`frames` frames): each must
+    succeed with finite materials and frames, or fail in one line (a NaN result is exit 3), never crash.
+    Returns both outcomes (simulate's None when annotate failed); their problems list what went wrong."""
+    source, annotated, sim_dir = folder / f"in.{suffix}", folder / "out.ply", folder / "sim"
+
+    def annotate(f: Path) -> list[str]:
+        source.write_bytes(data)
+        return ["annotate", str(source), str(annotated), "--device", "cpu", "-q"]
+
+    first = run_case(Case("annotate", "accepted mutation", annotate, codes=(3,)), folder)
+    second = None
+    if first.code == 0:
+        first.problems = [p for p in first.problems if p != "wrong success" and not p.startswith("leftovers")]
+        from pixie_gs.splat import read_splat
+
+        if not all(np.isfinite(a).all() for a in read_splat(annotated).get_materials()):
+            first.problems.append("wrong success: non-finite materials written")
+        second = run_case(Case("simulate", "accepted mutation", lambda f: [
+            "simulate", str(annotated), "--out", str(sim_dir), "--frames", str(frames), "--device", "cpu", "-q"],
+            codes=(3,)), folder, timeout_s=300)
+        if second.code == 0:
+            second.problems = [p for p in second.problems if p != "wrong success" and not p.startswith("leftovers")]
+    for path in (source, annotated, folder / "out.prepare.json"):
+        path.unlink(missing_ok=True)
+    shutil.rmtree(sim_dir, ignore_errors=True)
+    return first, second
 
 
 def fuzz_info_once(data: bytes, folder: Path, name: str = "m.ply") -> Outcome:
