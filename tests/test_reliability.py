@@ -189,6 +189,48 @@ def test_damaged_checkpoint_payloads_are_refused_in_one_line(tmp_path, capsys, k
         assert rc == 1 and "NaN" in one_error_line(err)
 
 
+def test_a_pickled_python_object_as_checkpoint_is_one_line_without_torch_warnings(tmp_path, capsys):
+    """A pickle of arbitrary Python objects named as the checkpoint: one line saying why it is not loaded, and
+    none of torch's own warnings about the file (stop 54: a UserWarning about the pickle protocol and a
+    message cut mid-sentence came before)."""
+    import pickle
+    import warnings
+
+    ckpt = tmp_path / "pickled.pt"
+    ckpt.write_bytes(pickle.dumps({"format": "x", "call": os.system.__name__}, protocol=4))
+    splat = write_ply(tmp_path / "s.ply", vertex_table(n=50))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rc, err = run_cli(["annotate", splat, tmp_path / "o.ply", "--checkpoint", ckpt, "--device", "cpu", "-q"],
+                          capsys)
+    line = one_error_line(err)
+    assert rc == 1 and str(ckpt) in line and "could run code" in line, line
+    assert [str(w.message)[:80] for w in caught] == []
+    assert not (tmp_path / "o.ply").exists()
+
+
+def test_a_compressed_ply_with_an_infinite_chunk_bound_is_one_line_without_numpy_warnings(tmp_path, capsys):
+    """A compressed PLY whose first chunk's min_x is inf decodes NaN positions: `pixie info` refuses it in one
+    line, and numpy's "invalid value encountered" warning from the decode is not printed beside it (stop 54)."""
+    import warnings
+
+    from fuzz_corpus import valid_splat_bytes
+    from plyfile import PlyData
+
+    source = tmp_path / "ok.compressed.ply"
+    source.write_bytes(valid_splat_bytes("compressed.ply"))
+    ply = PlyData.read(str(source))
+    ply["chunk"].data["min_x"][0] = np.inf
+    bad = tmp_path / "inf_chunk.compressed.ply"
+    ply.write(str(bad))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rc, err = run_cli(["info", bad], capsys)
+    line = one_error_line(err)
+    assert rc == 1 and str(bad) in line and "non-finite position" in line, line
+    assert [str(w.message)[:80] for w in caught] == []
+
+
 def _overflowing_checkpoint(tmp_path: Path) -> Path:
     """A checkpoint with finite weights scaled by 1e38: its predictions overflow to NaN. (The output norm's
     scale, which feeds both heads: a layer followed by a GroupNorm is normalised back to finite values

@@ -74,16 +74,37 @@ def save_checkpoint(path: str | Path, model: MaterialUNet, features: FeatureSpec
 def read_payload(path: Path) -> dict:
     """The checkpoint file's dict as `torch.load(weights_only=True)` reads it, not yet validated; a
     missing or unreadable file is a one-line InputError naming it."""
-    import torch
-
     if not path.is_file():
         raise InputError("checkpoint not found" + (" (the shipped default is missing from this install)"
                                                     if path == DEFAULT_CHECKPOINT else ""), path)
+    return load_weights_only(path, "torch checkpoint")
+
+
+def load_weights_only(path: Path, what: str) -> object:
+    """`torch.load(path, weights_only=True)` on the CPU, any failure a one-line InputError naming the file as
+    not a readable `what`; torch's own warnings about the file (an unusual pickle protocol) are not printed, the
+    error says what is wrong."""
+    import pickle
+    import warnings
+
+    import torch
+
     try:
-        return torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        if "weights only" in str(exc).lower():  # a pickle of arbitrary Python objects: loading it could run code
+            raise InputError(f"not a readable {what} (it holds Python objects other than tensors and numbers, "
+                             "which are not loaded because loading them could run code)", path) from None
+        raise InputError(f"not a readable {what} (damaged pickle: {_first_line(exc)})", path) from None
     except Exception as exc:  # torch raises many types for foreign or damaged files
-        text = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
-        raise InputError(f"not a readable torch checkpoint ({text})", path) from None
+        raise InputError(f"not a readable {what} ({_first_line(exc)})", path) from None
+
+
+def _first_line(exc: BaseException) -> str:
+    """The first line of an exception's text (120 characters at most), or its type's name."""
+    return str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
 
 
 def load_checkpoint(path: str | Path | None = None, device: str = "cpu") -> LoadedModel:
@@ -231,11 +252,7 @@ def load_training_state(path: str | Path) -> dict:
     import torch
 
     path = Path(path)
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for foreign or damaged files
-        text = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
-        raise InputError(f"not a readable training state ({text})", path) from None
+    state = load_weights_only(path, "training state")
     types = {"model": dict, "optimizer": dict, "epoch": int, "step": int, "elapsed_s": (int, float),
              "best_score": (int, float), "history_json": str, "extra_names": (list, tuple)}
     if not isinstance(state, dict):
