@@ -6,8 +6,9 @@
 2. Mutation fuzzing: N random mutations of a valid splat of each format (.ply, compressed .ply, .splat,
    .spz) through `pixie info --json` (error in one line, or a validated splat with finite covariances), and
    of a mesh of each format trimesh writes (GLB, OBJ, STL, PLY, OFF) through `pixie convert`; and P mutated
-   splats that still read as valid through `pixie annotate` and a 3-frame `pixie simulate` (finite results or
-   a one-line exit 3, never a crash; stop 53 found a NaN annotate and a segfaulting simulate this way).
+   splats that still read as valid through `pixie annotate`, `pixie render` of the result, a 3-frame `pixie
+   simulate` and `pixie render` of its frames (finite results or a one-line exit 3, never a crash; stop 53 found
+   a NaN annotate and a segfaulting simulate this way).
 3. Interruption: T trials each of SIGINT, SIGTERM and SIGKILL sent at a random moment of
    `pixie simulate --force` over an existing output (subprocesses, as a user runs it); afterwards
    the output folder must be the old output byte for byte or the complete new one (frames that
@@ -148,8 +149,8 @@ def run_mesh_mutations(work: Path, iterations: int, verbose: bool, seed: int) ->
 
 
 def run_pipeline(work: Path, count: int, verbose: bool, seed: int) -> dict:
-    """`count` mutated splats that still read as valid (every format, 300 Gaussians) through `pixie annotate`
-    and then `pixie simulate` (3 frames): successes, exit-3 results (a NaN or a diverged run: allowed by the
+    """`count` mutated splats that still read as valid (every format, 300 Gaussians) through `pixie annotate`,
+    `render`, `simulate` (3 frames) and `render` of the frames: successes, exit-3 results (a NaN or a diverged run: allowed by the
     promises, but each is a valid input the pipeline could not handle) and broken promises (crashes count)."""
     from pixie_gs.splat import read_splat
 
@@ -175,16 +176,14 @@ def run_pipeline(work: Path, count: int, verbose: bool, seed: int) -> dict:
         finally:
             probe.unlink()
         outcomes["inputs"] += 1
-        annotated, simulated = fc.annotate_and_simulate_once(blob, suffix, folder)
-        outcomes["annotate ok" if annotated.code == 0 else f"annotate exit {annotated.code}"] += 1
-        problems = list(annotated.problems)
-        if simulated is not None:
-            outcomes["simulate ok" if simulated.code == 0 else f"simulate exit {simulated.code}"] += 1
-            problems += simulated.problems
+        problems = []
+        for step, outcome in fc.through_the_pipeline_once(blob, suffix, folder).items():
+            outcomes[f"{step} ok" if outcome.code == 0 else f"{step} exit {outcome.code}"] += 1
+            problems += outcome.problems
         tally.update(categorise(problems))
         if problems and verbose:
             print(f"  pipeline on a mutated .{suffix}: {problems}", flush=True)
-    print(f"\nmutated splats that still read as valid, through annotate and a 3-frame simulate: {count} in "
+    print(f"\nmutated splats that still read as valid, through annotate, render, a 3-frame simulate and render: {count} in "
           f"{time.perf_counter() - t0:.0f} s; " + ", ".join(f"{k} {v}" for k, v in sorted(outcomes.items())))
     print("  " + ", ".join(f"{c} {tally[c]}" for c in CATEGORIES))
     return {**dict(outcomes), **{c: tally[c] for c in CATEGORIES}}

@@ -778,33 +778,39 @@ def fuzz_convert_once(data: bytes, suffix: str, folder: Path) -> Outcome:
     return outcome
 
 
-def annotate_and_simulate_once(data: bytes, suffix: str, folder: Path, frames: int = 3) -> tuple[Outcome, Outcome | None]:
-    """A splat that reads as valid through `pixie annotate` then `pixie simulate` (`frames` frames): each must
-    succeed with finite materials and frames, or fail in one line (a NaN result is exit 3), never crash.
-    Returns both outcomes (simulate's None when annotate failed); their problems list what went wrong."""
-    source, annotated, sim_dir = folder / f"in.{suffix}", folder / "out.ply", folder / "sim"
+def through_the_pipeline_once(data: bytes, suffix: str, folder: Path, frames: int = 3) -> dict[str, Outcome]:
+    """A splat that reads as valid through `pixie annotate`, `pixie render` of the result (a 96-px PNG of its
+    material), `pixie simulate` (`frames` frames) and `pixie render` of the frames: each must succeed with finite
+    results, or fail in one line (a NaN result is exit 3), never crash. Returns the outcomes of the steps that
+    ran, by command ("annotate", "render", "simulate", "render frames"); a step runs only after its input was
+    made. Their problems list what went wrong."""
+    from pixie_gs.splat import read_splat
 
-    def annotate(f: Path) -> list[str]:
-        source.write_bytes(data)
-        return ["annotate", str(source), str(annotated), "--device", "cpu", "-q"]
+    source, annotated, sim_dir, png = folder / f"in.{suffix}", folder / "out.ply", folder / "sim", folder / "o.png"
 
-    first = run_case(Case("annotate", "accepted mutation", annotate, codes=(3,)), folder)
-    second = None
-    if first.code == 0:
-        first.problems = [p for p in first.problems if p != "wrong success" and not p.startswith("leftovers")]
-        from pixie_gs.splat import read_splat
+    def step(name: str, command: str, argv: list[str]) -> Outcome:
+        outcome = run_case(Case(command, "accepted mutation", lambda f: argv, codes=(3,)), folder, timeout_s=300)
+        if outcome.code == 0:  # success is right here, and the outputs it made are no leftovers
+            outcome.problems = [p for p in outcome.problems if p != "wrong success" and not p.startswith("leftovers")]
+        outcomes[name] = outcome
+        return outcome
 
+    outcomes: dict[str, Outcome] = {}
+    source.write_bytes(data)
+    if step("annotate", "annotate", ["annotate", str(source), str(annotated), "--device", "cpu", "-q"]).code == 0:
         if not all(np.isfinite(a).all() for a in read_splat(annotated).get_materials()):
-            first.problems.append("wrong success: non-finite materials written")
-        second = run_case(Case("simulate", "accepted mutation", lambda f: [
-            "simulate", str(annotated), "--out", str(sim_dir), "--frames", str(frames), "--device", "cpu", "-q"],
-            codes=(3,)), folder, timeout_s=300)
-        if second.code == 0:
-            second.problems = [p for p in second.problems if p != "wrong success" and not p.startswith("leftovers")]
-    for path in (source, annotated, folder / "out.prepare.json"):
+            outcomes["annotate"].problems.append("wrong success: non-finite materials written")
+        step("render", "render", ["render", str(annotated), "--out", str(png), "--modes", "colour,material,logE",
+                                  "--size", "96", "--device", "cpu", "-q"])
+        png.unlink(missing_ok=True)
+        if step("simulate", "simulate", ["simulate", str(annotated), "--out", str(sim_dir), "--frames", str(frames),
+                                         "--device", "cpu", "-q"]).code == 0:
+            step("render frames", "render", ["render", str(sim_dir), "--out", str(png), "--size", "96",
+                                             "--device", "cpu", "-q"])
+    for path in (source, annotated, png, folder / "out.prepare.json"):
         path.unlink(missing_ok=True)
     shutil.rmtree(sim_dir, ignore_errors=True)
-    return first, second
+    return outcomes
 
 
 def fuzz_info_once(data: bytes, folder: Path, name: str = "m.ply") -> Outcome:

@@ -15,7 +15,7 @@ import warnings
 
 import numpy as np
 import pytest
-from fuzz_corpus import (MESH_SUFFIXES_FUZZED, SPLAT_SUFFIXES, annotate_and_simulate_once, corpus,
+from fuzz_corpus import (MESH_SUFFIXES_FUZZED, SPLAT_SUFFIXES, through_the_pipeline_once, corpus,
                          fuzz_convert_once, fuzz_info_once, mutate, mutate_mesh, mutate_splat, run_case, scene_dict,
                          valid_mesh_bytes, valid_ply_bytes, valid_splat_bytes, vertex_table)
 from hypothesis import HealthCheck, given, settings
@@ -231,13 +231,14 @@ def test_mutation_fuzz_through_convert(tmp_path, suffix):
     assert failures == []
 
 
-def test_valid_mutated_splats_annotate_and_simulate_or_fail_in_one_line(tmp_path):
-    """Mutated splats that still read as valid go through annotate and a 3-frame simulate: finite results
+def test_valid_mutated_splats_annotate_render_and_simulate_or_fail_in_one_line(tmp_path):
+    """Mutated splats that still read as valid go through annotate, render, a 3-frame simulate and render of
+    its frames: finite results
     or one line (exit 3), never a crash (stop 53: a NaN annotate and a segfault came from such files; the
     long run is `bench_fuzz.py --pipeline N`)."""
     rng = np.random.default_rng(53)
     bases = {suffix: valid_splat_bytes(suffix) for suffix in SPLAT_SUFFIXES}
-    done, failures = 0, []
+    done, failures, steps = 0, [], set()
     while done < 6:
         suffix = SPLAT_SUFFIXES[done % len(SPLAT_SUFFIXES)]
         blob = mutate_splat(bases[suffix], suffix, rng)
@@ -247,7 +248,8 @@ def test_valid_mutated_splats_annotate_and_simulate_or_fail_in_one_line(tmp_path
             continue
         path.unlink()
         done += 1
-        for outcome in annotate_and_simulate_once(blob, suffix, tmp_path):
-            if outcome is not None and outcome.problems:
-                failures.append((suffix, outcome.case.command, outcome.problems))
+        outcomes = through_the_pipeline_once(blob, suffix, tmp_path)
+        failures += [(suffix, step, o.problems) for step, o in outcomes.items() if o.problems]
+        steps.update(outcomes)
     assert failures == []
+    assert set(steps) == {"annotate", "render", "simulate", "render frames"}  # every step ran at least once
