@@ -337,6 +337,7 @@ class SplatCloud:
         return out
 
     # ------------------------------------------------------------------ validation
+    @np.errstate(all="ignore")  # it looks for NaN, inf and absurd values: numpy's warnings about them add nothing
     def invalid_gaussians(self) -> list[tuple[str, np.ndarray]]:
         """(problem, bad mask (N,)) for every checked property with at least one bad Gaussian.
 
@@ -480,7 +481,8 @@ def read_splat(path: str | Path) -> SplatCloud:
     """
     from .formats import read_any
 
-    return read_any(path)
+    with np.errstate(all="ignore"):  # a damaged file's NaN/inf/overflow is refused by validation, in one line
+        return read_any(path)
 
 
 def _rest_index(name: str) -> int:
