@@ -6,9 +6,9 @@
 2. Mutation fuzzing: N random mutations of a valid splat of each format (.ply, compressed .ply, .splat,
    .spz) through `pixie info --json` (error in one line, or a validated splat with finite covariances), and
    of a mesh of each format trimesh writes (GLB, OBJ, STL, PLY, OFF) through `pixie convert`; and P mutated
-   splats that still read as valid through `pixie annotate`, `pixie render` of the result, a 3-frame `pixie
-   simulate` and `pixie render` of its frames (finite results or a one-line exit 3, never a crash; stop 53 found
-   a NaN annotate and a segfaulting simulate this way).
+   splats and meshes that still make a valid splat through `pixie annotate`, `pixie render` of the result, a
+   3-frame `pixie simulate` and `pixie render` of its frames (finite results or one line with exit 1 or 3, never
+   a crash; stop 53 found a NaN annotate and a segfaulting simulate this way).
 3. Interruption: T trials each of SIGINT, SIGTERM and SIGKILL sent at a random moment of
    `pixie simulate --force` over an existing output (subprocesses, as a user runs it); afterwards
    the output folder must be the old output byte for byte or the complete new one (frames that
@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import argparse
 import collections
+import contextlib
+import io
 import json
 import shutil
 import signal
@@ -148,33 +150,55 @@ def run_mesh_mutations(work: Path, iterations: int, verbose: bool, seed: int) ->
         "a trimesh-written .{suffix} mesh through `pixie convert`", iterations, verbose)
 
 
-def run_pipeline(work: Path, count: int, verbose: bool, seed: int) -> dict:
-    """`count` mutated splats that still read as valid (every format, 300 Gaussians) through `pixie annotate`,
-    `render`, `simulate` (3 frames) and `render` of the frames: successes, exit-3 results (a NaN or a diverged run: allowed by the
-    promises, but each is a valid input the pipeline could not handle) and broken promises (crashes count)."""
+def _valid_mutated_source(rng: np.random.Generator, splats: dict, meshes: dict, folder: Path) -> tuple[bytes, str] | None:
+    """One mutated input of a random format that still makes a valid splat: (its splat bytes, their format), or
+    None where the mutation was refused. A mutated mesh is converted first (`pixie convert --count 400`)."""
+    from pixie_gs.cli.main import main
     from pixie_gs.splat import read_splat
 
+    formats = list(splats) + list(meshes)
+    suffix = formats[int(rng.integers(0, len(formats)))]
+    is_mesh = suffix in meshes
+    blob = (meshes if is_mesh else splats)[suffix]
+    for _ in range(int(rng.integers(1, 4))):
+        blob = fc.mutate_mesh(blob, suffix, rng) if is_mesh else fc.mutate_splat(blob, suffix, rng)
+    probe, converted = folder / f"probe.{suffix}", folder / "converted.ply"
+    probe.write_bytes(blob)
+    try:
+        if is_mesh:
+            with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+                if main(["convert", str(probe), str(converted), "--count", "400", "-q"]) != 0:
+                    return None
+            return converted.read_bytes(), "ply"
+        with np.errstate(all="ignore"):  # as the CLI reads it (cli.main.quiet_float_warnings)
+            read_splat(probe).validate()
+        return blob, suffix
+    except Exception:  # noqa: BLE001 - refused inputs are the mutation part's business
+        return None
+    finally:
+        probe.unlink()
+        converted.unlink(missing_ok=True)
+
+
+def run_pipeline(work: Path, count: int, verbose: bool, seed: int) -> dict:
+    """`count` mutated inputs that still make a valid splat (every splat format at 300 Gaussians, and every mesh
+    format converted to 400) through `pixie annotate`, `render`, `simulate` (3 frames) and `render` of the frames:
+    successes, one-line refusals (exit 1: e.g. a flat splat that prepare reads as ground alone), exit-3 results (a
+    NaN or a diverged run: allowed by the promises, but each is a valid input the pipeline could not handle) and
+    broken promises (crashes count)."""
     folder = work / "pipeline"
     folder.mkdir()
     rng = np.random.default_rng([seed, 200])
-    bases = {suffix: fc.valid_splat_bytes(suffix) for suffix in fc.SPLAT_SUFFIXES}
+    splats = {suffix: fc.valid_splat_bytes(suffix) for suffix in fc.SPLAT_SUFFIXES}
+    meshes = {suffix: fc.valid_mesh_bytes(suffix) for suffix in fc.MESH_SUFFIXES_FUZZED}
     tally = collections.Counter()
     outcomes = collections.Counter()
     t0 = time.perf_counter()
     while outcomes["inputs"] < count:
-        suffix = fc.SPLAT_SUFFIXES[int(rng.integers(0, len(fc.SPLAT_SUFFIXES)))]
-        blob = bases[suffix]
-        for _ in range(int(rng.integers(1, 4))):
-            blob = fc.mutate_splat(blob, suffix, rng)
-        probe = folder / f"probe.{suffix}"
-        probe.write_bytes(blob)
-        try:
-            with np.errstate(all="ignore"):  # as the CLI reads it (cli.main.quiet_float_warnings)
-                read_splat(probe).validate()
-        except Exception:  # noqa: BLE001 - refused inputs are the mutation part's business
+        found = _valid_mutated_source(rng, splats, meshes, folder)
+        if found is None:
             continue
-        finally:
-            probe.unlink()
+        blob, suffix = found
         outcomes["inputs"] += 1
         problems = []
         for step, outcome in fc.through_the_pipeline_once(blob, suffix, folder).items():
@@ -183,8 +207,9 @@ def run_pipeline(work: Path, count: int, verbose: bool, seed: int) -> dict:
         tally.update(categorise(problems))
         if problems and verbose:
             print(f"  pipeline on a mutated .{suffix}: {problems}", flush=True)
-    print(f"\nmutated splats that still read as valid, through annotate, render, a 3-frame simulate and render: {count} in "
-          f"{time.perf_counter() - t0:.0f} s; " + ", ".join(f"{k} {v}" for k, v in sorted(outcomes.items())))
+    print(f"\nmutated splats and meshes that still make a valid splat, through annotate, render, a 3-frame simulate "
+          f"and render: {count} in {time.perf_counter() - t0:.0f} s; "
+          + ", ".join(f"{k} {v}" for k, v in sorted(outcomes.items())))
     print("  " + ", ".join(f"{c} {tally[c]}" for c in CATEGORIES))
     return {**dict(outcomes), **{c: tally[c] for c in CATEGORIES}}
 

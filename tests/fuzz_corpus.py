@@ -783,13 +783,14 @@ def through_the_pipeline_once(data: bytes, suffix: str, folder: Path, frames: in
     material), `pixie simulate` (`frames` frames) and `pixie render` of the frames: each must succeed with finite
     results, or fail in one line (a NaN result is exit 3), never crash. Returns the outcomes of the steps that
     ran, by command ("annotate", "render", "simulate", "render frames"); a step runs only after its input was
-    made. Their problems list what went wrong."""
+    made. Exit 1 in one line is allowed too: a valid splat can still be refused, e.g. a flat one that `prepare`
+    reads as ground alone ("found no object to simulate"). Their problems list what went wrong."""
     from pixie_gs.splat import read_splat
 
     source, annotated, sim_dir, png = folder / f"in.{suffix}", folder / "out.ply", folder / "sim", folder / "o.png"
 
     def step(name: str, command: str, argv: list[str]) -> Outcome:
-        outcome = run_case(Case(command, "accepted mutation", lambda f: argv, codes=(3,)), folder, timeout_s=300)
+        outcome = run_case(Case(command, "accepted mutation", lambda f: argv, codes=(1, 3)), folder, timeout_s=300)
         if outcome.code == 0:  # success is right here, and the outputs it made are no leftovers
             outcome.problems = [p for p in outcome.problems if p != "wrong success" and not p.startswith("leftovers")]
         outcomes[name] = outcome
