@@ -355,8 +355,7 @@ class SplatCloud:
                   range_text: str | None = None) -> None:
             a = np.asarray(arr, np.float64).reshape(len(arr), -1)
             nonfinite = ~np.isfinite(a).all(axis=1)
-            with np.errstate(invalid="ignore"):
-                absurd = (np.abs(a) > limit).any(axis=1)
+            absurd = (np.abs(a) > limit).any(axis=1)
             if extra_bad is not None:
                 absurd |= extra_bad
             if nonfinite.any():
@@ -365,13 +364,11 @@ class SplatCloud:
                 found.append((f"out-of-range {name} ({range_text or f'|value| > {limit:g}'})", absurd))
 
         pos = np.asarray(self.means, np.float64).reshape(len(self.means), -1)
-        with np.errstate(invalid="ignore"):
-            subnormal = ((pos != 0) & (np.abs(pos) < np.finfo(np.float32).tiny)).any(axis=1)
+        subnormal = ((pos != 0) & (np.abs(pos) < np.finfo(np.float32).tiny)).any(axis=1)
         check("position", self.means, POSITION_LIMIT, subnormal, f"|x| > {POSITION_LIMIT:g} or subnormal")
         check("scale", self.log_scales, LOG_SCALE_LIMIT, None, f"|log σ| > {LOG_SCALE_LIMIT:g}")
         q = np.asarray(self.rotations, np.float64).reshape(len(self.rotations), -1)
-        with np.errstate(invalid="ignore", over="ignore"):
-            zero = ~(np.linalg.norm(q, axis=1) > 1e-12)
+        zero = ~(np.linalg.norm(q, axis=1) > 1e-12)
         if (zero | ~np.isfinite(q).all(axis=1)).any():
             found.append(("zero-length or non-finite rotation quaternion", zero | ~np.isfinite(q).all(axis=1)))
         check("opacity", self.opacity_logits, OPACITY_LOGIT_LIMIT)
@@ -390,8 +387,7 @@ class SplatCloud:
         for name, (zero_ok, hi, text) in ranges.items():
             if name in self.extras:
                 v = np.asarray(self.extras[name], np.float64)
-                with np.errstate(invalid="ignore"):
-                    outside = ((v < 0) if zero_ok else (v <= 0)) | ((v >= hi) if name == "nu" else (v > hi))
+                outside = ((v < 0) if zero_ok else (v <= 0)) | ((v >= hi) if name == "nu" else (v > hi))
                 check(name, v, np.inf, outside, text)
         return found
 
