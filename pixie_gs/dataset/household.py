@@ -24,7 +24,6 @@ GLASS = [(0.35, 0.55, 0.35), (0.45, 0.30, 0.15), (0.80, 0.85, 0.85), (0.25, 0.40
 PLASTIC = [(0.95, 0.20, 0.20), (0.15, 0.45, 0.90), (0.98, 0.85, 0.10), (0.20, 0.75, 0.35), (0.98, 0.98, 0.98),
            (0.95, 0.50, 0.10), (0.55, 0.25, 0.75)]
 STEEL = [(0.70, 0.72, 0.75), (0.55, 0.57, 0.60), (0.82, 0.83, 0.85), (0.20, 0.20, 0.22)]
-METAL_FLASK_SHARE = 0.5  # metal bottles drawn as drinking flasks; the rest take the glass and plastic bottles' shape
 FABRIC = [(0.70, 0.25, 0.25), (0.30, 0.40, 0.60), (0.85, 0.80, 0.70), (0.40, 0.55, 0.40), (0.55, 0.45, 0.60),
           (0.90, 0.70, 0.30), (0.50, 0.50, 0.52)]
 STONE = [(0.50, 0.50, 0.48), (0.42, 0.40, 0.37), (0.62, 0.58, 0.52), (0.35, 0.35, 0.36), (0.58, 0.50, 0.42)]
@@ -176,19 +175,16 @@ def mug(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
 @recipe("bottle")
 def bottle(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
     """Bottle 0.15–0.35 m (shell: body, shoulder, neck) with a cap and often a label band; a fifth
-    lie on their side. The colour palette comes from the part name (glass, plastic or metal). Half the
-    metal ones are drinking flasks (wide neck, high shoulder), half aluminium bottles shaped like the glass
-    and plastic ones, so shape alone does not tell metal from glass (docs/model_card.md, "Stop 55")."""
+    lie on their side. The colour palette comes from the part name (glass, plastic or metal)."""
     (part,) = tuple(parts)
     h = rng.uniform(0.15, 0.35)
     r = h * rng.uniform(0.12, 0.2)
     neck = rng.uniform(0.25, 0.45)
-    flask = part == "metal" and rng.random() < METAL_FLASK_SHARE
-    if flask:
+    if part == "metal":  # drinking flask: wide neck, high shoulder
         r, neck = h * rng.uniform(0.13, 0.18), rng.uniform(0.6, 0.85)
     palette = {"glass": GLASS, "plastic": PLASTIC, "metal": STEEL + [(0.15, 0.35, 0.55), (0.60, 0.15, 0.15)]}
     colour = jitter(rng, pick(rng, palette.get(part, GLASS)), 0.05)
-    sh = rng.uniform(0.78, 0.86) if flask else rng.uniform(0.55, 0.75)
+    sh = rng.uniform(0.55, 0.75) if part != "metal" else rng.uniform(0.78, 0.86)
     body = lathe(r * np.array([0.95, 1.0, 1.0, neck, neck]), h * np.array([0.0, 0.02, sh, sh + 0.2, 0.93]), 32,
                  True, False)
     cap = lathe(np.full(2, r * neck * 1.1), h * np.array([0.93, 1.0]), 20)
@@ -199,7 +195,7 @@ def bottle(rng: np.random.Generator, parts: set) -> tuple[list[Piece], dict]:
     lying = rng.random() < 0.2
     if lying:
         lay_on_side(pieces, h, r)
-    return pieces, _round({"height_m": h, "radius_m": r, "lying": lying, "flask": flask})
+    return pieces, _round({"height_m": h, "radius_m": r, "lying": lying})
 
 
 # ------------------------------------------------------------------------------------ soft and natural things
