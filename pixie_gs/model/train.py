@@ -106,8 +106,10 @@ def training_label_ranges(records) -> dict[str, list[float]]:
     e_lo, nu_lo, r_lo = denormalize_physical(lo)
     e_hi, nu_hi, r_hi = denormalize_physical(hi)
 
-    def pair(a: float, b: float) -> list[float]:  # widened outwards at the 4th decimal
-        return [math.floor(float(a) * 1e4) / 1e4, math.ceil(float(b) * 1e4) / 1e4]
+    def pair(a: float, b: float) -> list[float]:
+        # widened outwards at the 4th decimal; rounded to the 6th first, so float32 noise on a label at a table
+        # extreme (log10 8e10 Pa = 10.90309 read back as 10.903101) does not widen it a whole step past the table
+        return [math.floor(round(float(a), 6) * 1e4) / 1e4, math.ceil(round(float(b), 6) * 1e4) / 1e4]
 
     return {"log10_E_pa": pair(np.log10(e_lo), np.log10(e_hi)), "nu": pair(nu_lo, nu_hi),
             "log10_density_kg_m3": pair(np.log10(r_lo), np.log10(r_hi))}
