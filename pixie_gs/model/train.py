@@ -107,8 +107,8 @@ def training_label_ranges(records) -> dict[str, list[float]]:
     e_hi, nu_hi, r_hi = denormalize_physical(hi)
 
     def pair(a: float, b: float) -> list[float]:
-        # widened outwards at the 4th decimal; rounded to the 6th first, so float32 noise on a label at a table
-        # extreme (log10 8e10 Pa = 10.90309 read back as 10.903101) does not widen it a whole step past the table
+        # widened outwards at the 4th decimal; rounded to the 6th first, so float32 noise on a label already at a
+        # 4-decimal edge (a teacher's output clamped to 10.9031, read back as 10.9031000137) keeps that edge
         return [math.floor(round(float(a), 6) * 1e4) / 1e4, math.ceil(round(float(b), 6) * 1e4) / 1e4]
 
     return {"log10_E_pa": pair(np.log10(e_lo), np.log10(e_hi)), "nu": pair(nu_lo, nu_hi),
