@@ -187,6 +187,34 @@ def test_teacher_pool_turns_each_object_upright_and_labels_it_as_training_reads_
         make_pool(tmp_path / "pool", [src], str(start), "cpu", max_gaussians=1000)
 
 
+def test_teacher_pool_labels_stay_inside_the_class_table(tiny_run, tmp_path, monkeypatch):
+    """A teacher whose stored E range reaches past the class table (10^11.5 Pa) and whose head is pushed to
+    its top labels the pool at the table's highest E (8e10 Pa) instead, so a student trained on it stores
+    10.9031 decades, not the teacher's edge: the widening at the 4th decimal does not pass from one
+    generation of checkpoints to the next (r59's 10.9032)."""
+    import math
+
+    from pixie_gs import annotate as ann
+    from pixie_gs.dataset.labels import table_extremes
+    from pixie_gs.dataset.loader import list_objects, load_object
+    from pixie_gs.dataset.teacher_pool import make_pool
+
+    _, _, start, _ = tiny_run
+    teacher = load_checkpoint(str(start), "cpu")
+    teacher.meta = {**teacher.meta, "label_ranges": {**teacher.meta["label_ranges"], "log10_E_pa": [3.0, 11.5]}}
+    with torch.no_grad():
+        teacher.model.physical_head.bias += 3.0
+    monkeypatch.setitem(ann._CACHE, (str(start), "cpu"), teacher)
+    make_pool(tmp_path / "pool", [_a_generated_object(tmp_path)], str(start), "cpu", max_gaussians=500)
+    obj, _ = load_object(list_objects(tmp_path / "pool", "train")[0])
+    _, E, nu, rho = obj.get_materials()
+    ex = table_extremes()
+    assert ex["E"][1] == 8e10 and np.all(E == np.float32(8e10)), (E.min(), E.max())
+    assert nu.min() >= ex["nu"][0] and nu.max() <= ex["nu"][1]
+    assert rho.min() >= np.float32(ex["density"][0]) and rho.max() <= np.float32(ex["density"][1])
+    assert math.ceil(round(float(np.log10(E.max())), 6) * 1e4) / 1e4 == 10.9031
+
+
 def test_train_adds_the_teacher_pool_repeated_and_distils_on_it(tiny_run, tmp_path):
     """`--teacher-pool P --teacher-pool-repeat 3`: the run trains on the 4 generated objects and 3 listings of
     P's one object; with every generated kind skipped, the distillation term comes from the pool alone."""

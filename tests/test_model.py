@@ -397,7 +397,7 @@ def test_annotate_outputs_stay_inside_label_ranges(bias, monkeypatch):
     far above them (bias 0), and when the real network's last layer is pushed far outside (bias ±3: raw
     E 10^14 / 10^-1 Pa)."""
     from pixie_gs import annotate as ann
-    from pixie_gs.dataset.labels import load_class_table
+    from pixie_gs.dataset.labels import table_extremes
     from pixie_gs.model.predict import label_ranges
 
     loaded = load_checkpoint(None, "cpu")
@@ -408,9 +408,7 @@ def test_annotate_outputs_stay_inside_label_ranges(bias, monkeypatch):
     _, E, nu, rho = out.get_materials()
     r = label_ranges(loaded.meta)
     tol = 1e-4
-    table = load_class_table()  # the training labels were drawn from it: their ranges lie inside its extremes
-    e_lo = min(p.E_pa[0] for c in table.values() for p in c.parts)
-    e_hi = max(p.E_pa[1] for c in table.values() for p in c.parts)
+    e_lo, e_hi = table_extremes()["E"]  # the training labels were drawn from the class table: inside its extremes
     # within two 4th-decimal steps: the stored ranges are widened outwards at the 4th decimal (one step), and
     # the shipped r59's ingredient, trained on r58's teacher pool (labels at r58's clamp, 10.9031), was trained
     # before training_label_ranges rounded float32 noise off, so it stored 10.9032 (a second step, 8.0002e10 Pa)

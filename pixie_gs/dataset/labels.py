@@ -185,6 +185,14 @@ def load_class_table(path: str | Path | None = None) -> dict[str, ClassSpec]:
                          path) from None
 
 
+def table_extremes(table: dict[str, ClassSpec] | None = None) -> dict[str, tuple[float, float]]:
+    """(lowest, highest) of every part's range per quantity ("E" Pa, "nu", "density" kg/m³) over the class
+    table (default: the packaged one): the span every generated label lies in, and the span a teacher's
+    labels are clipped to (pixie_gs/dataset/teacher_pool.py) so that no label leaves the vocabulary."""
+    parts = [p for c in (table if table is not None else load_class_table()).values() for p in c.parts]
+    return {q: (min(p.range_of(q)[0] for p in parts), max(p.range_of(q)[1] for p in parts)) for q in QUANTITIES}
+
+
 def sample_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(rng.uniform(lo, hi))
 
