@@ -71,6 +71,7 @@ def labelled_objects(cloud: SplatCloud, checkpoint: str | None, device: str, max
     rotation = scene.rotation()  # up vector to +z, as predict_materials turns it
     object_id = prepared_cloud.get("object_id").astype(np.int64)
     rng = np.random.default_rng(seed)
+    extremes = table_extremes()  # read once per capture, not per object
     objects = []
     for obj in scene.objects:
         mine = np.nonzero(object_id == obj.object_id)[0]
@@ -86,21 +87,24 @@ def labelled_objects(cloud: SplatCloud, checkpoint: str | None, device: str, max
         if len(keep) == 0:
             continue
         out = upright.subset(keep)
-        out.set_materials(*labels_inside_table(*annotate_cloud(out, checkpoint, device, up="z").get_materials()))
+        out.set_materials(*labels_inside_table(annotate_cloud(out, checkpoint, device, up="z").get_materials(),
+                                               extremes))
         out.set("part_id", np.zeros(len(out)), np.int32)
         objects.append(out)
     return objects
 
 
-def labels_inside_table(material_id: np.ndarray, E_pa: np.ndarray, nu: np.ndarray,
-                        density_kg_m3: np.ndarray) -> tuple[np.ndarray, ...]:
-    """The teacher's materials (id, E Pa, ν, ρ kg/m³) with E, ν, ρ clipped to the class table's extremes.
+def labels_inside_table(materials: tuple[np.ndarray, ...],
+                        extremes: dict[str, tuple[float, float]]) -> tuple[np.ndarray, ...]:
+    """The teacher's `materials` (id, E Pa, ν, ρ kg/m³) with E, ν, ρ clipped to the class table's `extremes`
+    (`labels.table_extremes`).
     Why: a teacher's outputs are clamped to *its* stored label ranges, which are widened outwards at the 4th
     decimal; a pool labelled at that edge (r59 reads 117 guitar Gaussians at 10^10.9032 Pa, the table's top is
     8e10 = 10^10.90309) would carry the widening into every student's ranges, one generation after another."""
-    ex = table_extremes()
-    return (material_id, np.clip(E_pa, *ex["E"]).astype(np.float32), np.clip(nu, *ex["nu"]).astype(np.float32),
-            np.clip(density_kg_m3, *ex["density"]).astype(np.float32))
+    material_id, E_pa, nu, density_kg_m3 = materials
+    return (material_id, np.clip(E_pa, *extremes["E"]).astype(np.float32),
+            np.clip(nu, *extremes["nu"]).astype(np.float32),
+            np.clip(density_kg_m3, *extremes["density"]).astype(np.float32))
 
 
 def teacher_majority(entries: list[dict]) -> dict[str, int]:
