@@ -98,22 +98,26 @@ def object_box_crops(real: Path, scale: float = 1.0) -> dict[str, list[str]]:
     return crops
 
 
-def region_confidence(real: Path, out_dir: Path) -> dict[str, list[float]]:
-    """Expectations file name → per check, the mean `confidence` annotate wrote for the Gaussians inside the
-    check's box (inclusive, as score.py selects them; NaN for an empty box)."""
+def region_readings(real: Path, out_dir: Path) -> dict[str, list[dict[str, float]]]:
+    """Expectations file name → per check, what annotate wrote for the Gaussians inside the check's box
+    (inclusive, as score.py selects them): mean `confidence`, median log10 E (Pa) and median density (kg/m³);
+    NaN for an empty box. The medians show a drift (wood read softer) before a check's share falls."""
     from pixie_gs.splat import read_splat
 
     out = {}
     for entry in expectation_entries(real):
         cloud = read_splat(out_dir / entry["file"])
         xyz = np.asarray(cloud.means, float)
-        conf = np.asarray(cloud.get("confidence"), float)
-        means = []
+        fields = {"confidence": np.asarray(cloud.get("confidence"), float),
+                  "log10_E_pa": np.log10(np.asarray(cloud.get("E"), float)),
+                  "density_kg_m3": np.asarray(cloud.get("density"), float)}
+        readings = []
         for region in entry["regions"]:
             lo, hi = (np.asarray(c, float) for c in region["box"])
             inside = np.all((xyz >= lo) & (xyz <= hi), axis=1)
-            means.append(float(conf[inside].mean()) if inside.any() else float("nan"))
-        out[entry["file"]] = means
+            readings.append({key: (float(values[inside].mean() if key == "confidence" else np.median(values[inside]))
+                                   if inside.any() else float("nan")) for key, values in fields.items()})
+        out[entry["file"]] = readings
     return out
 
 
@@ -193,9 +197,9 @@ def score(real: Path, scorer: Path, files: dict[str, Path], checkpoint: Path, ou
             summary = tuple(int(v) for v in s.groups())
     if summary is None:
         raise SystemExit(f"score.py printed no summary line for {checkpoint}")
-    for name, means in region_confidence(real, out_dir).items():
-        for check, mean in zip(assets.get(name, {}).get("per_check", []), means):
-            check["confidence"] = mean
+    for name, readings in region_readings(real, out_dir).items():
+        for check, reading in zip(assets.get(name, {}).get("per_check", []), readings):
+            check.update(reading)
     checks = [c for a in assets.values() for c in a["per_check"]]
     auroc = pass_fail_auroc([c["passed"] for c in checks], [c.get("confidence", float("nan")) for c in checks])
     return {"checkpoint": str(checkpoint), "checks_passed": summary[0], "checks": summary[1],

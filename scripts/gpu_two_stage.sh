@@ -27,6 +27,8 @@ S1_SEED=${S1_SEED:-40}; S2_SEED=${S2_SEED:-41}
 PLANT_COPIES=${PLANT_COPIES:-1}    # times stage 1's plants enter stage 2's train split
 S1_BUDGET_S=${S1_BUDGET_S:-240}    # stage 1's training budget, s (its --epochs may end it sooner)
 S1_ARGS=${S1_ARGS:-"--batch-size 16 --lr 1e-3 --warmup-steps 20 --hue-share 0 --epochs 16"}
+S1_TRAIN=${S1_TRAIN:-1}            # 0: stage 1 makes its plant data but does not train; stage 2 starts from START
+                                   # (stage 1 reads real wood ~2 decades softer; docs/training.md, "Stop 58")
 ARM_A=${ARM_A:-"--batch-size 16 --lr 3e-4 --hue-share 0 --tilt-deg 40 --tilt-share 0.5"}
 ARM_B=${ARM_B-"--batch-size 16 --lr 3e-4 --hue-share 0.5 --tilt-deg 40 --tilt-share 0.5 --distill $START --distill-weight 3 --distill-skip tree,sand,snow_mud,metal_tools,cloth,long_produce"}
 export PYTHONUNBUFFERED=1 OMP_NUM_THREADS=${OMP_NUM_THREADS:-4}
@@ -53,12 +55,19 @@ make_data "$D2O" "$S2_SEED" "$S2_TIERS" "$S2_VAL_TIERS" "$HALF" &
 gen_pid=$!
 make_data "$D1" "$S1_SEED" "$S1_TIERS" "$S1_VAL_TIERS" "$HALF" || { say "stage 1 data failed"; exit 1; }
 say "stage 1 data: $(du -sh "$D1" | cut -f1)"
-train s1 "$D1" "$S1_BUDGET_S" --init "$START" --workers $HALF --seed $S1_SEED $S1_ARGS
-wait $gen_pid || { say "stage 2 data failed"; exit 1; }
-S1_LAST=$(ls "$OUT" | grep -E '^s1\.epoch[0-9]+\.pt$' | sort -V | tail -1)
-[ -n "$S1_LAST" ] || { say "stage 1 left no epoch"; exit 1; }
-# stage 1's other epochs are not needed (stage 2 starts from the last): removed before any call carries them
-ls "$OUT" | grep -E '^s1\.epoch[0-9]+\.pt$' | grep -vxF "$S1_LAST" | while read -r f; do rm -f "$OUT/$f"; done
+if [ "$S1_TRAIN" = 1 ]; then
+  train s1 "$D1" "$S1_BUDGET_S" --init "$START" --workers $HALF --seed $S1_SEED $S1_ARGS
+  wait $gen_pid || { say "stage 2 data failed"; exit 1; }
+  S1_LAST=$(ls "$OUT" | grep -E '^s1\.epoch[0-9]+\.pt$' | sort -V | tail -1)
+  [ -n "$S1_LAST" ] || { say "stage 1 left no epoch"; exit 1; }
+  # stage 1's other epochs are not needed (stage 2 starts from the last): removed before any call carries them
+  ls "$OUT" | grep -E '^s1\.epoch[0-9]+\.pt$' | grep -vxF "$S1_LAST" | while read -r f; do rm -f "$OUT/$f"; done
+  INIT=$OUT/$S1_LAST
+else
+  say "stage 1 not trained (S1_TRAIN=0): stage 2 starts from $START"
+  wait $gen_pid || { say "stage 2 data failed"; exit 1; }
+  INIT=$START
+fi
 # stage 2's data: the other kinds plus stage 1's plants, PLANT_COPIES times in train (copied: merge_splits moves
 # the files; more copies raise the plants' share of each epoch, about 10 % with one copy of the default tiers)
 copies=()
@@ -67,18 +76,18 @@ rm -rf "$D2" && mkdir -p "$D2" \
   && python3 scripts/merge_splits.py "$D2" train "$D2O" "${copies[@]}" >>"$LOG" \
   && python3 scripts/merge_splits.py "$D2" val "$D2O" "${copies[0]}" >>"$LOG" \
   && mv "$D2O/test" "$D2/test" && rm -rf "${copies[@]}" || { say "stage 2 merge failed"; exit 1; }
-say "stage 2 data: $(du -sh "$D2" | cut -f1); from $S1_LAST"
+say "stage 2 data: $(du -sh "$D2" | cut -f1); from $(basename "$INIT")"
 S2_BUDGET_S=$(( TOTAL_S - $(elapsed) - RESERVE_S - LOAD_S ))
 [ $S2_BUDGET_S -lt 30 ] && { say "no time left for stage 2 ($S2_BUDGET_S s)"; exit 1; }
 if [ -n "$ARM_B" ]; then
   say "stage 2: two arms, ${S2_BUDGET_S} s each"
-  train A "$D2" $S2_BUDGET_S --init "$OUT/$S1_LAST" --workers $HALF --seed $S2_SEED $ARM_A &
+  train A "$D2" $S2_BUDGET_S --init "$INIT" --workers $HALF --seed $S2_SEED $ARM_A &
   sleep 5
-  train B "$D2" $S2_BUDGET_S --init "$OUT/$S1_LAST" --workers $HALF --seed $S2_SEED $ARM_B &
+  train B "$D2" $S2_BUDGET_S --init "$INIT" --workers $HALF --seed $S2_SEED $ARM_B &
   wait
 else  # ARM_B='': arm A alone, with the whole GPU and every worker
   say "stage 2: arm A alone, ${S2_BUDGET_S} s"
-  train A "$D2" $S2_BUDGET_S --init "$OUT/$S1_LAST" --workers $WORKERS --seed $S2_SEED $ARM_A
+  train A "$D2" $S2_BUDGET_S --init "$INIT" --workers $WORKERS --seed $S2_SEED $ARM_A
 fi
 rm -f "$OUT"/*.state.pt "$OUT"/eval_*.txt
 say "done"
