@@ -108,15 +108,15 @@ def region_readings(real: Path, out_dir: Path) -> dict[str, list[dict[str, float
     for entry in expectation_entries(real):
         cloud = read_splat(out_dir / entry["file"])
         xyz = np.asarray(cloud.means, float)
-        fields = {"confidence": np.asarray(cloud.get("confidence"), float),
-                  "log10_E_pa": np.log10(np.asarray(cloud.get("E"), float)),
-                  "density_kg_m3": np.asarray(cloud.get("density"), float)}
+        fields = {"confidence": (np.asarray(cloud.get("confidence"), float), np.mean),  # each with its statistic
+                  "log10_E_pa": (np.log10(np.asarray(cloud.get("E"), float)), np.median),
+                  "density_kg_m3": (np.asarray(cloud.get("density"), float), np.median)}
         readings = []
         for region in entry["regions"]:
             lo, hi = (np.asarray(c, float) for c in region["box"])
             inside = np.all((xyz >= lo) & (xyz <= hi), axis=1)
-            readings.append({key: (float(values[inside].mean() if key == "confidence" else np.median(values[inside]))
-                                   if inside.any() else float("nan")) for key, values in fields.items()})
+            readings.append({key: float(statistic(values[inside])) if inside.any() else float("nan")
+                             for key, (values, statistic) in fields.items()})
         out[entry["file"]] = readings
     return out
 

@@ -55,9 +55,9 @@ make_data "$D2O" "$S2_SEED" "$S2_TIERS" "$S2_VAL_TIERS" "$HALF" &
 gen_pid=$!
 make_data "$D1" "$S1_SEED" "$S1_TIERS" "$S1_VAL_TIERS" "$HALF" || { say "stage 1 data failed"; exit 1; }
 say "stage 1 data: $(du -sh "$D1" | cut -f1)"
+[ "$S1_TRAIN" = 1 ] && train s1 "$D1" "$S1_BUDGET_S" --init "$START" --workers $HALF --seed $S1_SEED $S1_ARGS
+wait $gen_pid || { say "stage 2 data failed"; exit 1; }
 if [ "$S1_TRAIN" = 1 ]; then
-  train s1 "$D1" "$S1_BUDGET_S" --init "$START" --workers $HALF --seed $S1_SEED $S1_ARGS
-  wait $gen_pid || { say "stage 2 data failed"; exit 1; }
   S1_LAST=$(ls "$OUT" | grep -E '^s1\.epoch[0-9]+\.pt$' | sort -V | tail -1)
   [ -n "$S1_LAST" ] || { say "stage 1 left no epoch"; exit 1; }
   # stage 1's other epochs are not needed (stage 2 starts from the last): removed before any call carries them
@@ -65,7 +65,6 @@ if [ "$S1_TRAIN" = 1 ]; then
   INIT=$OUT/$S1_LAST
 else
   say "stage 1 not trained (S1_TRAIN=0): stage 2 starts from $START"
-  wait $gen_pid || { say "stage 2 data failed"; exit 1; }
   INIT=$START
 fi
 # stage 2's data: the other kinds plus stage 1's plants, PLANT_COPIES times in train (copied: merge_splits moves
