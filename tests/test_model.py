@@ -505,6 +505,34 @@ def test_stats_by_look_keeps_the_weights_and_the_pooled_statistics(tmp_path):
     assert torch.load(ckpt, weights_only=True)["meta"] == after["meta"]
 
 
+def test_stats_copy_from_moves_the_statistics_and_nothing_else(tmp_path, capsys):
+    """`python -m pixie_gs.model.stats CKPT --copy-from OTHER`: CKPT gets OTHER's grid statistics (groups
+    included) and its name, its weights and label ranges stay; a donor without statistics, or with another
+    feature grid, is refused in one line and CKPT is left as it was."""
+    from pixie_gs.model.stats import main as stats_main
+
+    shipped = torch.load(DEFAULT_CHECKPOINT, weights_only=True)
+    ckpt, donor, bare, other_grid = (tmp_path / n for n in ("m.pt", "donor.pt", "bare.pt", "grid.pt"))
+    torch.save({**shipped, "meta": {**shipped["meta"], "feature_stats": {"objects": 1, "mean": [0.0], "std": [1.0]}}},
+               ckpt)
+    torch.save(shipped, donor)
+    torch.save({**shipped, "meta": {k: v for k, v in shipped["meta"].items() if k != "feature_stats"}}, bare)
+    torch.save({**shipped, "features": {**shipped["features"], "resolution": 32}}, other_grid)
+    before = torch.load(ckpt, weights_only=True)
+    stats_main([str(ckpt), "--copy-from", str(donor)])
+    after = torch.load(ckpt, weights_only=True)
+    assert after["meta"]["feature_stats"] == shipped["meta"]["feature_stats"] and "groups" in after["meta"]["feature_stats"]
+    assert after["meta"]["feature_stats_from"] == "donor.pt"
+    assert after["meta"]["label_ranges"] == before["meta"]["label_ranges"]
+    assert all(torch.equal(before["state_dict"][k], after["state_dict"][k]) for k in before["state_dict"])
+    for bad, words in ((bare, "no grid statistics"), (other_grid, "feature grid differs")):
+        with pytest.raises(SystemExit):
+            stats_main([str(ckpt), "--copy-from", str(bad)])
+        err = capsys.readouterr().err.strip().splitlines()[-1]
+        assert words in err and bad.name in err
+        assert torch.load(ckpt, weights_only=True)["meta"] == after["meta"]
+
+
 def test_annotate_writes_confidence_and_warns_when_unlike_training(monkeypatch, capsys):
     """Per-Gaussian `confidence` in [0, 1]; with training statistics far from this object the
     in-distribution factor drops to ~0 and annotate says the materials are a guess."""

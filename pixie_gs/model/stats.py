@@ -7,7 +7,10 @@ handle (capture-like objects and clean converted meshes, `--realistic-share`):
 
     python -m pixie_gs.model.stats CKPT [--count 100] [--classes tree,flowers,…|all] [--gaussians 12000]
                                         [--realistic-share 0.0] [--by-look]
+    python -m pixie_gs.model.stats CKPT --copy-from OTHER.pt
 
+`--copy-from OTHER.pt` stores OTHER's statistics instead of computing any (they describe the inputs, not the
+weights, so a checkpoint trained further on the same feature grid can carry the shipped one's unchanged).
 `--by-look` keeps the checkpoint's own statistics and adds those of the capture-like and the clean objects
 apart (meta["feature_stats"]["groups"]): one mean and spread over a mix of two looks puts a clean converted
 mesh (constant opacity, dense surface) far from the middle of both, and the out-of-distribution score then
@@ -22,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_path
+from ..errors import InputError
 from ..progress import progress
 
 PAPER_CLASSES = ["tree", "flowers", "shrubs", "grass", "rubber_ducks_toys", "sport_balls", "soda_cans",
@@ -97,6 +101,26 @@ def add_stats(checkpoint: str | Path, classes: list[str], count: int, n_gaussian
     return stats
 
 
+def copy_stats(checkpoint: str | Path, source: str | Path) -> dict:
+    """Store `source`'s grid statistics (groups included) in `checkpoint`, weights untouched; returns them.
+    InputError when `source` has none or its feature grid differs (the statistics would describe other inputs)."""
+    import torch
+
+    from .checkpoint import read_payload
+
+    target, donor = read_payload(Path(checkpoint)), read_payload(Path(source))
+    stats = donor.get("meta", {}).get("feature_stats")
+    if stats is None:
+        raise InputError("it has no grid statistics to copy", source)
+    if donor.get("features") != target.get("features"):
+        raise InputError(f"its feature grid differs from {Path(checkpoint).name}'s: its statistics describe other inputs",
+                         source)
+    target["meta"] = {**target.get("meta", {}), "feature_stats": stats, "feature_stats_from": Path(source).name}
+    with atomic_path(checkpoint, suffix=".pt.tmp") as tmp:
+        torch.save(target, tmp)
+    return stats
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("checkpoint")
@@ -108,7 +132,16 @@ def main(argv: list[str] | None = None) -> None:
                     help="share of capture-like objects (the rest are clean converter output; default 0)")
     ap.add_argument("--by-look", action="store_true",
                     help="keep the checkpoint's statistics and add the capture-like and clean objects' apart")
+    ap.add_argument("--copy-from", metavar="OTHER", default=None,
+                    help="store OTHER checkpoint's statistics (same feature grid) instead of computing them")
     args = ap.parse_args(argv)
+    if args.copy_from is not None:
+        try:
+            stats = copy_stats(args.checkpoint, args.copy_from)
+        except InputError as exc:
+            ap.error(str(exc))
+        print(f"{args.checkpoint}: feature statistics of {stats['objects']} objects copied from {args.copy_from}")
+        return
     if args.classes == "all":
         from ..dataset.labels import load_class_table
 
