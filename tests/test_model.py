@@ -528,6 +528,9 @@ def test_stats_copy_from_moves_the_statistics_and_nothing_else(tmp_path, capsys)
         err = capsys.readouterr().err.strip().splitlines()[-1]
         assert words in err and bad.name in err
         assert torch.load(ckpt, weights_only=True)["meta"] == after["meta"]
+    with pytest.raises(SystemExit):  # copied or computed, not both
+        stats_main([str(ckpt), "--copy-from", str(donor), "--by-look"])
+    assert "not allowed with" in capsys.readouterr().err
 
 
 def test_annotate_writes_confidence_and_warns_when_unlike_training(monkeypatch, capsys):

@@ -130,10 +130,11 @@ def main(argv: list[str] | None = None) -> None:
                     help="Gaussians per object, or several comma-separated that the objects take in turn")
     ap.add_argument("--realistic-share", type=float, default=0.0,
                     help="share of capture-like objects (the rest are clean converter output; default 0)")
-    ap.add_argument("--by-look", action="store_true",
-                    help="keep the checkpoint's statistics and add the capture-like and clean objects' apart")
-    ap.add_argument("--copy-from", metavar="OTHER", default=None,
-                    help="store OTHER checkpoint's statistics (same feature grid) instead of computing them")
+    source = ap.add_mutually_exclusive_group()  # computed here (and perhaps grouped by look), or copied
+    source.add_argument("--by-look", action="store_true",
+                        help="keep the checkpoint's statistics and add the capture-like and clean objects' apart")
+    source.add_argument("--copy-from", metavar="OTHER", default=None,
+                        help="store OTHER checkpoint's statistics (same feature grid) instead of computing them")
     args = ap.parse_args(argv)
     if args.copy_from is not None:
         try:
