@@ -93,19 +93,25 @@ def add_stats(checkpoint: str | Path, classes: list[str], count: int, n_gaussian
         stats["groups_source"] = source
     else:
         stats = {**summary_stats(loaded, f), "source": source}
-    payload = torch.load(checkpoint, map_location="cpu", weights_only=True)
-    meta = {k: v for k, v in payload.get("meta", {}).items() if k != "feature_stats_from"}  # (a soup's, now stale)
-    payload["meta"] = {**meta, "feature_stats": stats}
+    store_stats(checkpoint, torch.load(checkpoint, map_location="cpu", weights_only=True), stats)
+    return stats
+
+
+def store_stats(checkpoint: str | Path, payload: dict, stats: dict, copied_from: str | None = None) -> None:
+    """Write `payload` (the checkpoint's own) back to `checkpoint` atomically with `stats` as its grid statistics,
+    weights untouched; `feature_stats_from` names the checkpoint they were copied from, or goes (a soup's record
+    of where its statistics came from is stale once they are recomputed)."""
+    import torch
+
+    meta = {k: v for k, v in payload.get("meta", {}).items() if k != "feature_stats_from"}
+    payload["meta"] = {**meta, "feature_stats": stats, **({"feature_stats_from": copied_from} if copied_from else {})}
     with atomic_path(checkpoint, suffix=".pt.tmp") as tmp:
         torch.save(payload, tmp)
-    return stats
 
 
 def copy_stats(checkpoint: str | Path, source: str | Path) -> dict:
     """Store `source`'s grid statistics (groups included) in `checkpoint`, weights untouched; returns them.
     InputError when `source` has none or its feature grid differs (the statistics would describe other inputs)."""
-    import torch
-
     from .checkpoint import read_payload
 
     target, donor = read_payload(Path(checkpoint)), read_payload(Path(source))
@@ -115,9 +121,7 @@ def copy_stats(checkpoint: str | Path, source: str | Path) -> dict:
     if donor.get("features") != target.get("features"):
         raise InputError(f"its feature grid differs from {Path(checkpoint).name}'s: its statistics describe other inputs",
                          source)
-    target["meta"] = {**target.get("meta", {}), "feature_stats": stats, "feature_stats_from": Path(source).name}
-    with atomic_path(checkpoint, suffix=".pt.tmp") as tmp:
-        torch.save(target, tmp)
+    store_stats(checkpoint, target, stats, copied_from=Path(source).name)
     return stats
 
 
